@@ -1,0 +1,3 @@
+from saft.cli import main
+
+raise SystemExit(main())
