@@ -1,0 +1,150 @@
+"""The `saft` command.
+
+    saft demo [--out DIR]                       synthetic scene → reconstruction → evaluation table
+    saft evaluate RESULT_DIR --gt GT_OR_SCENE   CD2, CD1, p2s per frame and mean; writes metrics.json
+    saft inspect SCENE                          check a scene and print what saft reads from it
+    saft info                                   versions, devices and rendering backends available
+
+Bad input ends with one line naming the file and the problem, exit code 2 (`--debug` shows the traceback).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+from saft import __version__
+from saft.errors import BackendUnavailableError, SaftInputError, SimulationError
+
+log = logging.getLogger("saft")
+
+EXIT_BAD_INPUT = 2
+
+
+def _setup_logging(quiet: bool, debug: bool) -> None:
+    from rich.logging import RichHandler
+
+    level = logging.DEBUG if debug else (logging.WARNING if quiet else logging.INFO)
+    handler = RichHandler(show_time=False, show_path=False, markup=False, rich_tracebacks=debug)
+    logging.basicConfig(level=level, format="%(message)s", handlers=[handler], force=True)
+
+
+def _add_common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--quiet", action="store_true", help="no progress bars; warnings and results only")
+    p.add_argument("--debug", action="store_true", help="show full tracebacks and debug logs")
+
+
+# ---------------------------------------------------------------------------- subcommands
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from saft.evaluate import evaluate_result_dir, format_metrics_table, ground_truth_spec_from_path
+
+    spec = ground_truth_spec_from_path(args.gt, frame=args.gt_frame, flip_axes=args.flip, root=args.root)
+    metrics = evaluate_result_dir(args.result_dir, spec, seed=args.seed, allow_partial=args.allow_partial)
+    print(format_metrics_table(metrics))
+    log.info("wrote %s", Path(args.result_dir) / "metrics.json")
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    print("saft demo: the reconstruction pipeline is not there yet (issue: reconstruction); "
+          "`saft evaluate` and the scene readers are.")
+    return 0
+
+
+def cmd_inspect(args: argparse.Namespace) -> int:
+    from saft.scene import load_scene
+
+    scene = load_scene(args.scene, root=args.root)
+    cam = scene.working_camera()
+    print(f"scene {scene.name}: {scene.num_frames} frames of {scene.camera.width}x{scene.camera.height}"
+          f"{' with masks' if scene.frames.has_masks else ' (masks derived from non-black pixels)'}")
+    print(f"template: {scene.template.num_vertices} vertices, {len(scene.template.quads)} quads")
+    print(f"camera: fx={cam.fx:.2f} fy={cam.fy:.2f} cx={cam.cx:.2f} cy={cam.cy:.2f}, working image "
+          f"{cam.width}x{cam.height}{f' (crop {scene.crop.to_json()})' if scene.crop else ''}")
+    print(f"frame_dt={scene.frame_dt:g}s  gravity={scene.gravity_or_default().round(3).tolist()}"
+          f"{'' if scene.gravity is not None else ' (default: opposite the camera up)'}"
+          f"  pinned={0 if scene.pinned is None else len(scene.pinned)}  texture={'yes' if scene.texture is not None else 'no'}"
+          f"  ground truth={scene.ground_truth_dir or 'none'}")
+    if args.all_frames:
+        from saft.scene.frames import check_all_frames
+
+        check_all_frames(scene.frames)
+        print("all frames readable and of the same size")
+    return 0
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    import platform
+
+    import torch
+
+    print(f"saft {__version__}  python {platform.python_version()}  torch {torch.__version__}")
+    print(f"torch threads: {torch.get_num_threads()}  CUDA available: {torch.cuda.is_available()}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="saft", description="Shape and appearance of fabrics from a template and one RGB video.")
+    parser.add_argument("--version", action="version", version=f"saft {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    p = sub.add_parser("demo", help="reconstruct a built-in synthetic example and print its accuracy")
+    p.add_argument("--out", type=Path, default=Path("saft-demo"), help="result folder (default ./saft-demo)")
+    _add_common(p)
+    p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("evaluate", help="compare a result's meshes with ground-truth point clouds",
+                       description="Per-frame and mean CD2 (1e-4 m²), CD1 (cm), p2s (mm) of RESULT_DIR/meshes/"
+                                   "frame_*.obj against ground truth; writes RESULT_DIR/metrics.json.")
+    p.add_argument("result_dir", type=Path, help="a result folder with meshes/frame_000.obj …")
+    p.add_argument("--gt", required=True, type=Path,
+                   help="ground-truth point clouds (.pt/.npy/.ply per frame) or a scene that names them")
+    p.add_argument("--gt-frame", choices=["world", "camera"], default=None,
+                   help="frame the point clouds are stored in (default: from the scene, else world)")
+    p.add_argument("--flip", default=None, help="axes to negate in the ground truth, e.g. 'xy'")
+    p.add_argument("--root", type=Path, default=None, help="dataset root for a SAFT/PG-SfT scene JSON")
+    p.add_argument("--seed", type=int, default=0, help="seed of the surface sampling (default 0)")
+    p.add_argument("--allow-partial", action="store_true",
+                   help="evaluate the frames present when the result has fewer frames than the ground truth")
+    _add_common(p)
+    p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("inspect", help="check a scene and print what saft reads from it")
+    p.add_argument("scene", type=Path, help="a native scene folder or a SAFT/PG-SfT scene .json")
+    p.add_argument("--root", type=Path, default=None, help="dataset root for a SAFT/PG-SfT scene JSON")
+    p.add_argument("--all-frames", action="store_true", help="also open every frame and mask")
+    _add_common(p)
+    p.set_defaults(func=cmd_inspect)
+
+    p = sub.add_parser("info", help="versions, devices and backends")
+    _add_common(p)
+    p.set_defaults(func=cmd_info)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "command", None):
+        parser.print_help()
+        return 0
+    debug = getattr(args, "debug", False)
+    _setup_logging(getattr(args, "quiet", False), debug)
+    try:
+        return int(args.func(args) or 0)
+    except (SaftInputError, BackendUnavailableError) as exc:
+        if debug:
+            raise
+        print(f"saft: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except SimulationError as exc:
+        if debug:
+            raise
+        print(f"saft: simulation failed: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("saft: interrupted", file=sys.stderr)
+        return 130
