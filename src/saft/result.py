@@ -1,0 +1,133 @@
+"""The result folder of a reconstruction: its layout, and reading it back.
+
+    DIR/
+      config.toml            the full typed config the run used
+      scene.json             what was reconstructed: scene name and source, working camera, crop, frame_dt
+      meshes/frame_000.obj   one quad OBJ per input frame, with UVs, in the scene's world frame (metres);
+      meshes/cloth.mtl       … each referring to this material (diffuse = ../texture.png)
+      texture.png            the texture of phase 1 (sRGB)
+      params.json            Y, B, S (and log10), constant acceleration, damping, frame_dt, substeps
+      forces.npy             (N-1, V, 3) per-vertex, per-frame accelerations (m/s²) of phase 2
+      renders/frame_000.png  rendered | target | |difference| per frame
+      log.csv                per epoch: phase, epoch, frames in use, each loss term, seconds
+      timings.json           seconds per phase
+      metrics.json           with ground truth: per-frame and mean CD2, CD1, p2s (saft evaluate)
+      material/              phase 3: diffuse.png, roughness.png, metallic.png, envmap.exr (+ envmap.png),
+                             renders/frame_000.png re-renders, novel_view.png
+      checkpoint/            state for --resume (removed only by the user)
+
+Every file is written atomically (saft.io_utils), so an interrupted run never leaves a half-written one.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from saft.errors import SaftInputError
+from saft.scene.camera import Camera
+from saft.scene.mesh import QuadMesh, read_obj
+
+MESH_DIR = "meshes"
+MESH_MTL = "cloth.mtl"
+
+
+def mesh_path(result_dir: str | Path, frame: int) -> Path:
+    return Path(result_dir) / MESH_DIR / f"frame_{frame:03d}.obj"
+
+
+def list_mesh_files(result_dir: str | Path) -> list[Path]:
+    folder = Path(result_dir) / MESH_DIR
+    if not folder.is_dir():
+        raise SaftInputError(folder, "no meshes/ folder: not a saft result (expected meshes/frame_000.obj …)")
+    files = sorted(folder.glob("frame_*.obj"))
+    if not files:
+        raise SaftInputError(folder, "no frame_*.obj meshes in this folder")
+    return files
+
+
+def mtl_text(texture_rel: str = "../texture.png") -> str:
+    return ("# saft cloth material\nnewmtl cloth\nKa 0 0 0\nKd 1 1 1\nKs 0 0 0\nd 1\nillum 1\n"
+            f"map_Kd {texture_rel}\n")
+
+
+@dataclass
+class Result:
+    """A result folder read back (what export, report and evaluate need)."""
+
+    folder: Path
+    template: QuadMesh                 # topology + UVs (vertices of frame 0)
+    vertices: np.ndarray               # (N, V, 3) float64, world frame
+    frame_dt: float
+    texture: np.ndarray | None         # (H, W, 3) sRGB
+    params: dict
+    camera: Camera | None
+    scene_info: dict
+    config_text: str | None
+    log_rows: list[dict]
+    metrics: dict | None
+    timings: dict
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.vertices.shape[0])
+
+    def material_path(self, name: str) -> Path | None:
+        p = self.folder / "material" / name
+        return p if p.exists() else None
+
+
+def _read_json_opt(path: Path) -> dict:
+    if not path.is_file():
+        return {}
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise SaftInputError(path, f"not valid JSON ({exc})") from None
+
+
+def read_result(result_dir: str | Path) -> Result:
+    from saft.io_utils import read_image
+
+    folder = Path(result_dir)
+    if not folder.is_dir():
+        raise SaftInputError(folder, "result folder not found")
+    files = list_mesh_files(folder)
+    first = read_obj(files[0])
+    verts = [first.vertices]
+    for f in files[1:]:
+        m = read_obj(f)
+        if m.quads.shape != first.quads.shape or not np.array_equal(m.quads, first.quads):
+            raise SaftInputError(f, f"has another topology than {files[0].name}")
+        verts.append(m.vertices)
+    scene_info = _read_json_opt(folder / "scene.json")
+    params = _read_json_opt(folder / "params.json")
+    camera = None
+    if "camera" in scene_info:
+        c = scene_info["camera"]
+        camera = Camera(np.asarray(c["K"]), np.asarray(c["world_to_camera"]), c["width"], c["height"])
+    texture = None
+    if (folder / "texture.png").is_file():
+        texture = read_image(folder / "texture.png")[:, :, :3]
+    log_rows: list[dict] = []
+    if (folder / "log.csv").is_file():
+        with open(folder / "log.csv", newline="") as fh:
+            log_rows = list(csv.DictReader(fh))
+    config_text = (folder / "config.toml").read_text() if (folder / "config.toml").is_file() else None
+    metrics = _read_json_opt(folder / "metrics.json") or None
+    return Result(
+        folder=folder, template=first, vertices=np.stack(verts),
+        frame_dt=float(scene_info.get("frame_dt", params.get("frame_dt", 0.02))), texture=texture,
+        params=params, camera=camera, scene_info=scene_info, config_text=config_text, log_rows=log_rows,
+        metrics=metrics, timings=_read_json_opt(folder / "timings.json"),
+    )
+
+
+def read_config_dict(result_dir: str | Path) -> dict:
+    path = Path(result_dir) / "config.toml"
+    return tomllib.loads(path.read_text()) if path.is_file() else {}
