@@ -1,0 +1,84 @@
+"""Camera → clip space for the rasterizers.
+
+Clip space here is nvdiffrast's (OpenGL-style: a point is visible when −w ≤ x, y, z ≤ w, w = camera z)
+with one deliberate choice: y_ndc = −1 is the TOP row of the image. nvdiffrast writes pixel row r at
+y_ndc = (2r + 1)/H − 1, so its output then comes out top row first, exactly like saft's images — the same
+thing as rendering with y up and flipping nvdiffrast's bottom-up output, without the flip. (The y flip
+mirrors the winding of every triangle; both backends render two-sided, so nothing depends on winding.)
+
+With the OpenCV camera (x right, y down, z forward; pixel (row i, col j) centred at u = j, v = i):
+
+    x_ndc = (2 (u + 0.5) / W) − 1,    y_ndc = (2 (v + 0.5) / H) − 1,    w = z_cam,
+    z_ndc = (f + n)/(f − n) − 2 f n / ((f − n) z_cam)        (−1 at the near plane, +1 at the far plane).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from saft.scene.camera import Camera, Crop
+
+
+def projection_matrix(camera: Camera, near: float, far: float) -> np.ndarray:
+    """(4, 4) float64 matrix P with pos_clip = P @ [x_cam, y_cam, z_cam, 1]."""
+    if not (0.0 < near < far):
+        raise ValueError(f"need 0 < near < far, got near={near}, far={far}")
+    W, H = camera.width, camera.height
+    K = camera.K
+    P = np.zeros((4, 4))
+    P[0, 0] = 2.0 * K[0, 0] / W
+    P[0, 1] = 2.0 * K[0, 1] / W  # skew, normally 0
+    P[0, 2] = 2.0 * (K[0, 2] + 0.5) / W - 1.0
+    P[1, 1] = 2.0 * K[1, 1] / H
+    P[1, 2] = 2.0 * (K[1, 2] + 0.5) / H - 1.0
+    P[2, 2] = (far + near) / (far - near)
+    P[2, 3] = -2.0 * far * near / (far - near)
+    P[3, 2] = 1.0
+    return P
+
+
+def auto_near_far(z_cam: torch.Tensor) -> tuple[float, float]:
+    """Near/far planes bracketing the given camera depths with margin (0.5×min, 2×max + 1 cm).
+
+    Points at or behind the camera do not pull near below 1 mm. Nothing visible is clipped and the depth
+    range stays tight, which keeps z/w precise (the metric depth saft returns does not depend on them).
+    """
+    z = z_cam.detach()
+    zpos = z[z > 0]
+    if zpos.numel() == 0:
+        return 1e-3, 1.0
+    zmin, zmax = float(zpos.min()), float(zpos.max())
+    near = max(1e-3, 0.5 * zmin)
+    far = max(2.0 * zmax, near * 1.01) + 1e-2
+    return near, far
+
+
+def camera_to_clip(vertices: torch.Tensor, camera: Camera, *, crop: Crop | None = None,
+                   scale: float | None = None, near: float | None = None,
+                   far: float | None = None) -> torch.Tensor:
+    """World-frame points (..., V, 3) → clip-space positions (..., V, 4) for `camera`.
+
+    crop: render only that window of the camera's image (principal point shifted); scale: then resize the
+    image by that factor (integer or arbitrary, e.g. 0.5 or 1/3, see Camera.scaled). The resolution to
+    rasterize at is that of `effective_camera(camera, crop, scale)`. near/far default to auto_near_far.
+    Differentiable with respect to `vertices`; keeps their dtype and device.
+    """
+    cam = effective_camera(camera, crop, scale)
+    R = torch.as_tensor(cam.world_to_camera[:3, :3], dtype=vertices.dtype, device=vertices.device)
+    t = torch.as_tensor(cam.world_to_camera[:3, 3], dtype=vertices.dtype, device=vertices.device)
+    p_cam = vertices @ R.T + t
+    if near is None or far is None:
+        n_auto, f_auto = auto_near_far(p_cam[..., 2])
+        near = n_auto if near is None else near
+        far = f_auto if far is None else far
+    P = torch.as_tensor(projection_matrix(cam, near, far), dtype=vertices.dtype, device=vertices.device)
+    return torch.cat([p_cam, torch.ones_like(p_cam[..., :1])], dim=-1) @ P.T
+
+
+def effective_camera(camera: Camera, crop: Crop | None = None, scale: float | None = None) -> Camera:
+    """camera.cropped(crop).scaled(scale), skipping what is None."""
+    cam = camera if crop is None else camera.cropped(crop)
+    if scale is not None and scale != 1:
+        cam = cam.scaled(scale)
+    return cam

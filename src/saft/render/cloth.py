@@ -1,0 +1,92 @@
+"""render_cloth: the renderer of the texture and shape phases (paper §3.2.1).
+
+rasterize → interpolate (UV, camera depth, vertex normals, a constant-1 channel) → mip-mapped bilinear
+texture → antialias (RGB and the coverage channel together, which gives the silhouette gradients of both).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from saft.render.backend import get_rasterizer
+from saft.render.clip import camera_to_clip
+from saft.scene.camera import Camera
+
+
+@dataclass
+class RenderOutput:
+    """rgb (B, H, W, 3): texture colours as they are (no lighting), black background, antialiased.
+    mask (B, H, W): antialiased coverage in [0, 1] (differentiable, silhouette gradients).
+    depth (B, H, W): metric camera z of the visible surface, 0 where empty (not antialiased).
+    normals (B, H, W, 3): unit world-frame normals of the visible surface, interpolated from area-weighted
+    vertex normals, oriented by the triangle winding (not flipped towards the camera); 0 where empty.
+    rast (B, H, W, 4): the raw rasterizer output (u, v, z/w, triangle_id + 1).
+    pos_clip (B, V, 4): the clip-space vertices used."""
+
+    rgb: torch.Tensor
+    mask: torch.Tensor
+    depth: torch.Tensor
+    normals: torch.Tensor
+    rast: torch.Tensor
+    pos_clip: torch.Tensor
+
+
+def vertex_normals(vertices: torch.Tensor, tri: torch.Tensor) -> torch.Tensor:
+    """(B, V, 3) unit area-weighted vertex normals (right-hand rule on the triangle winding)."""
+    v0, v1, v2 = vertices[:, tri[:, 0]], vertices[:, tri[:, 1]], vertices[:, tri[:, 2]]
+    fn = torch.cross(v1 - v0, v2 - v0, dim=-1)  # length = 2·area
+    n = torch.zeros_like(vertices)
+    for k in range(3):
+        n = n.index_add(1, tri[:, k], fn)
+    return n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
+def _as_tensor(x, like: torch.Tensor, dtype=None) -> torch.Tensor:
+    if isinstance(x, torch.Tensor):
+        return x.to(device=like.device, dtype=dtype or x.dtype)
+    return torch.as_tensor(np.asarray(x), device=like.device, dtype=dtype)
+
+
+def render_cloth(vertices: torch.Tensor, triangles, uvs, texture: torch.Tensor, camera: Camera,
+                 rasterizer=None, *, near: float | None = None, far: float | None = None,
+                 max_mip_level: int | None = None) -> RenderOutput:
+    """Render textured cloth for the shape and texture phases.
+
+    vertices: (B, V, 3) or (V, 3) world-frame positions (differentiable); triangles (T, 3) int;
+    uvs (V, 2) OBJ convention (v up: (0, 0) is the bottom-left of the texture image); texture
+    (Ht, Wt, 3) float, row 0 = top of the image (differentiable), used as it is (sRGB, no lighting);
+    camera: saft Camera (already cropped/scaled as wanted; the output has its height and width).
+    rasterizer: from get_rasterizer(); default 'auto' for the vertices' device.
+    """
+    if vertices.dim() == 2:
+        vertices = vertices[None]
+    R = rasterizer if rasterizer is not None else get_rasterizer("auto", vertices.device)
+    tri = _as_tensor(triangles, vertices, torch.int64)
+    uv = _as_tensor(uvs, vertices, vertices.dtype)
+    tex = texture if isinstance(texture, torch.Tensor) else torch.as_tensor(np.asarray(texture))
+    tex = tex.to(device=vertices.device)
+    if tex.dim() == 3:
+        tex = tex[None]
+    B, V, _ = vertices.shape
+    H, W = camera.height, camera.width
+
+    pos = camera_to_clip(vertices, camera, near=near, far=far)
+    rast, rast_db = R.rasterize(pos, tri, (H, W), with_db=True)
+    uv_tex = torch.stack([uv[:, 0], 1.0 - uv[:, 1]], dim=-1)  # nvdiffrast texture: v → row from the top
+    normals_v = vertex_normals(vertices, tri)
+    attr = torch.cat([uv_tex[None].expand(B, V, 2), pos[..., 3:4], normals_v, torch.ones_like(pos[..., :1])],
+                     dim=-1)
+    pix, pix_da = R.interpolate(attr, rast, tri, rast_db=rast_db, diff_attrs=[0, 1])
+    covered = rast[..., 3] > 0
+    tex_rgb = R.texture(tex, pix[..., 0:2].contiguous(), pix_da, filter_mode="linear-mipmap-linear",
+                        boundary_mode="clamp", max_mip_level=max_mip_level, mask=covered)
+    cov = pix[..., 6:7]
+    rgb = tex_rgb.to(cov.dtype) * cov
+    aa = R.antialias(torch.cat([rgb, cov], dim=-1), rast, pos, tri)
+    n = pix[..., 3:6]
+    n = n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    return RenderOutput(rgb=aa[..., :3], mask=aa[..., 3], depth=pix[..., 2], normals=n, rast=rast,
+                        pos_clip=pos)

@@ -1,0 +1,80 @@
+"""The nvdiffrast backend (CUDA only): the same four primitives, delegated to nvdiffrast.
+
+Installed through the optional extra (``diffrp-nvdiffrast``, which JIT-compiles its CUDA plugin on first
+use); imported lazily so that saft imports without it. Inputs are converted to what nvdiffrast needs
+(contiguous float32 on the GPU, int32 triangles) and outputs keep nvdiffrast's layout, which is also the
+torch backend's: with saft's clip space (y_ndc = −1 at the top row, see saft.render.clip) row 0 of every
+output is the top of the image.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+
+import torch
+
+
+def nvdiffrast_available() -> bool:
+    try:
+        import nvdiffrast.torch  # noqa: F401
+    except Exception:  # ImportError, or a broken CUDA toolchain at import
+        return False
+    return torch.cuda.is_available()
+
+
+class NvdiffrastRasterizer:
+    """dr.RasterizeCudaContext on `device` plus the four ops; topology hashes cached per triangle tensor."""
+
+    name = "nvdiffrast"
+
+    def __init__(self, device: str | torch.device = "cuda"):
+        import nvdiffrast.torch as dr
+
+        self.device = torch.device(device)
+        if self.device.type != "cuda":
+            raise ValueError(f"the nvdiffrast backend needs a CUDA device, got {self.device}")
+        self._dr = dr
+        self.ctx = dr.RasterizeCudaContext(device=self.device)
+        self._topo: "OrderedDict[tuple, object]" = OrderedDict()
+
+    def _tri(self, tri: torch.Tensor) -> torch.Tensor:
+        return tri.to(device=self.device, dtype=torch.int32).contiguous()
+
+    def rasterize(self, pos: torch.Tensor, tri: torch.Tensor, resolution, with_db: bool = False):
+        if pos.dim() == 2:
+            pos = pos[None]
+        rast, rast_db = self._dr.rasterize(self.ctx, pos.float().contiguous(), self._tri(tri),
+                                           resolution=[int(resolution[0]), int(resolution[1])], grad_db=with_db)
+        return (rast, rast_db) if with_db else rast
+
+    def interpolate(self, attr, rast, tri, rast_db=None, diff_attrs=None):
+        out, out_da = self._dr.interpolate(attr.float().contiguous(), rast, self._tri(tri), rast_db=rast_db,
+                                           diff_attrs=diff_attrs)
+        if rast_db is None:
+            return out
+        return out, (out_da if diff_attrs is not None else None)
+
+    def texture(self, tex, uv, uv_da=None, filter_mode="auto", boundary_mode="wrap", max_mip_level=None,
+                mask=None):
+        if tex.dim() == 3:
+            tex = tex[None]
+        return self._dr.texture(tex.float().contiguous(), uv.float().contiguous(),
+                                None if uv_da is None else uv_da.float().contiguous(),
+                                filter_mode=filter_mode, boundary_mode=boundary_mode, max_mip_level=max_mip_level)
+
+    def antialias(self, color, rast, pos, tri):
+        if pos.dim() == 2:
+            pos = pos[None]
+        tri32 = self._tri(tri)
+        key = (tri32.data_ptr(), tuple(tri32.shape), int(tri32.sum()))
+        topo = self._topo.get(key)
+        if topo is None:
+            topo = self._dr.antialias_construct_topology_hash(tri32)
+            self._topo[key] = topo
+            if len(self._topo) > 8:
+                self._topo.popitem(last=False)
+        return self._dr.antialias(color.float().contiguous(), rast, pos.float().contiguous(), tri32,
+                                  topology_hash=topo)
+
+    def __repr__(self) -> str:
+        return f"NvdiffrastRasterizer(device={self.device})"
