@@ -1,0 +1,364 @@
+"""Linearised backward Euler (Baraff-Witkin, one Newton step) and the differentiable rollout.
+
+One substep (h = frame_dt / substeps), with v <- d * v first (velocity damping):
+    (M + h^2 K(x)) v1 = M (d v) + h (f(x) + M a_ext),   f = -dE/dx,   x1 = x + h v1
+a_ext = a_const + a_vert[k] during the substeps from frame k to frame k + 1.
+
+Pinned vertices: their velocity is prescribed, v1_P = (target - x_P) / h, and the system is solved for the
+free DOFs only (rows/columns of P replaced by the identity); x1_P is set to the target exactly.
+
+``rollout`` is one ``torch.autograd.Function``: the forward pass runs the whole simulation without autograd
+and keeps only (x, v, v1) per substep; the backward pass runs the discrete adjoint in reverse, with one
+adjoint linear solve per substep (the same reused-factorisation solver), closed-form element derivatives
+and the third-derivative contraction d/dx (lam^T K(x) v1). Autograd never sees a solver iteration.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from saft.errors import SimulationError
+from saft.physics.energy import LN10, ElementEval
+from saft.physics.solver import JacobiCGSolver, ReusedLUSolver, SolveStats
+from saft.physics.topology import ClothTopology
+
+GRAVITY = (0.0, -9.81, 0.0)
+DEFAULT_LOG10_Y = math.log10(200.0)  # paper, supplementary table: Y = 200, B = 1e-3, S = 1e-4
+DEFAULT_LOG10_B = -3.0
+DEFAULT_LOG10_S = -4.0
+DEFAULT_DAMPING = 0.9  # v <- 0.9 v per substep (paper, supplementary "Damping")
+LOG10_LIMITS = {"log10_Y": (1.0, 3.0), "log10_B": (-5.0, -2.0), "log10_S": (-4.0, -2.0)}  # REFERENCE.md
+
+
+@dataclass
+class PhysicsParams:
+    """The optimizable simulation parameters (all tensors; any of them may require grad).
+
+    log10_Y, log10_B, log10_S: 0-dim, log10 of the stretch / bend / shear stiffness (SI units).
+    damping: 0-dim velocity scale d applied before every substep.
+    a_const: (3,) constant acceleration (gravity + mean wind), m/s^2.
+    a_vert: (N - 1, V, 3) per-vertex per-frame accelerations, or None (zero).
+    """
+
+    log10_Y: torch.Tensor
+    log10_B: torch.Tensor
+    log10_S: torch.Tensor
+    damping: torch.Tensor
+    a_const: torch.Tensor
+    a_vert: torch.Tensor | None = None
+
+    @classmethod
+    def default(cls, num_frames: int | None = None, num_vertices: int | None = None, *, device=None,
+                dtype=torch.float64, requires_grad: bool = False) -> "PhysicsParams":
+        """Paper defaults: Y = 200, B = 1e-3, S = 1e-4, d = 0.9, a_const = gravity, a_vert = 0."""
+        f = dict(device=device, dtype=dtype)
+        p = cls(
+            log10_Y=torch.tensor(DEFAULT_LOG10_Y, **f),
+            log10_B=torch.tensor(DEFAULT_LOG10_B, **f),
+            log10_S=torch.tensor(DEFAULT_LOG10_S, **f),
+            damping=torch.tensor(DEFAULT_DAMPING, **f),
+            a_const=torch.tensor(GRAVITY, **f),
+            a_vert=None if num_frames is None else torch.zeros(num_frames - 1, num_vertices, 3, **f),
+        )
+        if requires_grad:
+            for t in p.tensors():
+                if t is not None:
+                    t.requires_grad_(True)
+        return p
+
+    def tensors(self):
+        return (self.log10_Y, self.log10_B, self.log10_S, self.damping, self.a_const, self.a_vert)
+
+    def clamp_(self) -> "PhysicsParams":
+        """Clamp the log-stiffnesses to the published ranges, in place (call after each optimizer step)."""
+        with torch.no_grad():
+            for name, (lo, hi) in LOG10_LIMITS.items():
+                getattr(self, name).clamp_(lo, hi)
+        return self
+
+
+def _solver_for(topology: ClothTopology, solver: str, tol: float, stats: SolveStats):
+    if solver == "auto":
+        solver = "lu" if topology.device.type == "cpu" else "cg"
+    if solver == "lu":
+        return ReusedLUSolver(topology.csr_indptr, topology.csr_indices, tol=tol, stats=stats)
+    if solver == "cg":
+        dev = topology.device
+        crow = torch.as_tensor(topology.csr_indptr, device=dev, dtype=torch.int64)
+        col = torch.as_tensor(topology.csr_indices, device=dev, dtype=torch.int64)
+        return JacobiCGSolver(crow, col, topology.diag_idx, tol=tol, stats=stats)
+    raise ValueError(f"solver must be 'auto', 'lu' or 'cg', got {solver!r}")
+
+
+class _Sim:
+    """Everything a rollout needs besides the differentiable inputs."""
+
+    def __init__(self, topology, num_frames, substeps, frame_dt, pinned, pinned_positions, hessian, solver, tol):
+        t = topology
+        self.t = t
+        self.V = t.num_vertices
+        self.N = int(num_frames)
+        self.substeps = int(substeps)
+        self.h = float(frame_dt) / self.substeps
+        self.mode = hessian
+        self.solver_kind = solver
+        self.tol = tol
+        self.stats = SolveStats()
+        self.use_numpy = (solver == "lu") or (solver == "auto" and t.device.type == "cpu")
+        self.m3 = t.mass[:, None].expand(-1, 3)  # (V, 3)
+        self.mass_diag = t.mass.repeat_interleave(3)  # (3V,)
+        self.pinned = None
+        if pinned is not None:
+            p = torch.as_tensor(pinned, device=t.device, dtype=torch.long).reshape(-1)
+            if p.numel() == 0:
+                p = None
+            self.pinned = p
+        if self.pinned is not None:
+            P = self.pinned
+            pdof = torch.zeros(3 * self.V, dtype=torch.bool, device=t.device)
+            pdof.view(self.V, 3)[P] = True
+            self.pdof = pdof
+            indptr = t.csr_indptr
+            rows = np.repeat(np.arange(3 * self.V), np.diff(indptr))
+            pd = pdof.cpu().numpy()
+            keep = ~(pd[rows] | pd[t.csr_indices])
+            self.keep = torch.as_tensor(keep, device=t.device, dtype=t.dtype)
+            self.pin_diag = t.diag_idx[pdof]
+            if pinned_positions is not None:
+                pp = torch.as_tensor(pinned_positions, device=t.device, dtype=t.dtype)
+                if pp.shape != (self.N, P.numel(), 3):
+                    raise ValueError(
+                        f"pinned_positions must have shape ({self.N}, {P.numel()}, 3), got {tuple(pp.shape)}"
+                    )
+                self.pin_targets = pp.detach()
+            else:
+                self.pin_targets = None
+
+    # ------------------------------------------------------------------ helpers
+    def target(self, x0, k, s):
+        """Prescribed pinned positions at the end of substep s of frame k (linear within the frame)."""
+        if self.pin_targets is None:
+            return x0[self.pinned]
+        w = (s + 1) / self.substeps
+        return (1.0 - w) * self.pin_targets[k] + w * self.pin_targets[k + 1]
+
+    def system(self, ev: ElementEval):
+        """(K data, A data) with A = M + h^2 K, before pinning."""
+        K = ev.hessian_values()
+        A = (self.h * self.h) * K
+        A.index_add_(0, self.t.diag_idx, self.mass_diag)
+        return K, A
+
+    def new_solver(self):
+        return _solver_for(self.t, self.solver_kind, self.tol, self.stats)
+
+    def spmv(self, data, vec):
+        t = self.t
+        if self.use_numpy:
+            import scipy.sparse as sp
+
+            n = 3 * self.V
+            M = sp.csr_matrix((data.numpy(), t.csr_indices, t.csr_indptr), shape=(n, n), copy=False)
+            return torch.from_numpy(M @ vec.numpy())
+        crow = torch.as_tensor(t.csr_indptr, device=t.device)
+        col = torch.as_tensor(t.csr_indices, device=t.device)
+        return torch.sparse_csr_tensor(crow, col, data, size=(3 * self.V, 3 * self.V)) @ vec
+
+    def lin_solve(self, solver, data, b, guess):
+        if self.use_numpy:
+            return torch.from_numpy(solver.solve(data.numpy(), b.numpy(), guess.numpy()))
+        return solver.solve(data, b, guess)
+
+
+def _check(arr, what, frame, substep):
+    if not bool(torch.isfinite(arr).all()):
+        raise SimulationError(f"non-finite {what} in the cloth simulation at frame {frame}, substep {substep}")
+
+
+class _RolloutFn(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, sim: _Sim, x0, v0, lY, lB, lS, damping, a_const, a_vert):
+        t = sim.t
+        Y, B, S = (10.0 ** float(lY)), (10.0 ** float(lB)), (10.0 ** float(lS))
+        d = float(damping)
+        h = sim.h
+        N, ns, V = sim.N, sim.substeps, sim.V
+        for name, val in (("log10_Y", lY), ("log10_B", lB), ("log10_S", lS), ("damping", damping),
+                          ("a_const", a_const), ("x0", x0), ("v0", v0)):
+            _check(val, f"input {name}", 0, 0)
+        positions = torch.empty(N, V, 3, dtype=x0.dtype, device=x0.device)
+        positions[0] = x0
+        saved = torch.empty(max(N - 1, 0) * ns, 3, V, 3, dtype=x0.dtype, device=x0.device)
+        x = x0.clone()
+        v = v0.clone()
+        solver = sim.new_solver()
+        m3 = sim.m3
+        pinned = sim.pinned
+        for k in range(N - 1):
+            a = a_const if a_vert is None else a_const + a_vert[k]
+            _check(a, "external acceleration", k, 0)
+            for s in range(ns):
+                i = k * ns + s
+                saved[i, 0] = x
+                saved[i, 1] = v
+                vd = d * v
+                ev = ElementEval(t, x, Y, B, S, sim.mode)
+                gradE = ev.grad().T  # (V, 3)
+                _, A = sim.system(ev)
+                b = (m3 * vd + h * (m3 * a - gradE)).reshape(-1)
+                if pinned is not None:
+                    tgt = sim.target(x0, k, s)
+                    vP = (tgt - x[pinned]) / h
+                    wfull = torch.zeros_like(x)
+                    wfull[pinned] = vP
+                    b = b - sim.spmv(A, wfull.reshape(-1))
+                    b.view(V, 3)[pinned] = vP
+                    A = A * sim.keep
+                    A[sim.pin_diag] = 1.0
+                v1 = sim.lin_solve(solver, A, b, vd.reshape(-1)).reshape(V, 3)
+                if pinned is not None:
+                    v1[pinned] = vP
+                _check(v1, "velocity", k, s)
+                x = x + h * v1
+                if pinned is not None:
+                    x[pinned] = tgt
+                v = v1
+                saved[i, 2] = v1
+            positions[k + 1] = x
+        ctx.sim = sim
+        ctx.solver = solver
+        ctx.save_for_backward(x0, saved, lY, lB, lS, damping, a_const, a_vert if a_vert is not None else x0.new_empty(0))
+        ctx.has_avert = a_vert is not None
+        return positions
+
+    @staticmethod
+    def backward(ctx, grad_pos):
+        sim: _Sim = ctx.sim
+        x0, saved, lY, lB, lS, damping, a_const, a_vert = ctx.saved_tensors
+        t = sim.t
+        Y, B, S = (10.0 ** float(lY)), (10.0 ** float(lB)), (10.0 ** float(lS))
+        d = float(damping)
+        h = sim.h
+        N, ns, V = sim.N, sim.substeps, sim.V
+        m3 = sim.m3
+        pinned = sim.pinned
+        solver = ctx.solver  # starts from the forward pass's last factorisation
+        grad_pos = grad_pos.to(x0.dtype)
+        gx = grad_pos[N - 1].clone()
+        gv = torch.zeros_like(x0)
+        g_a = torch.zeros(max(N - 1, 0), V, 3, dtype=x0.dtype, device=x0.device)
+        gY = torch.zeros((), dtype=x0.dtype, device=x0.device)
+        gB = torch.zeros_like(gY)
+        gS = torch.zeros_like(gY)
+        gd = torch.zeros_like(gY)
+        bw = t.bend_w
+        lam_guess = torch.zeros(3 * V, dtype=x0.dtype, device=x0.device)
+        for k in range(N - 2, -1, -1):
+            for s in range(ns - 1, -1, -1):
+                i = k * ns + s
+                x, v, v1 = saved[i, 0], saved[i, 1], saved[i, 2]
+                if pinned is not None:
+                    gx[pinned] = 0.0
+                    gv[pinned] = 0.0
+                ev = ElementEval(t, x, Y, B, S, sim.mode)
+                _, A = sim.system(ev)
+                rhs = (gv + h * gx).reshape(-1)
+                if pinned is not None:
+                    A = A * sim.keep
+                    A[sim.pin_diag] = 1.0
+                lam = sim.lin_solve(solver, A, rhs, lam_guess)
+                _check(lam, "adjoint", k, s)
+                lam_guess = lam
+                lamV = lam.view(V, 3)
+                adj = ev.adjoint_terms(lamV.T, v1.T)
+                # d/dx of lam.(b - A v1): -h (true Hessian) lam - h^2 d/dx(lam^T K(x) v1)
+                gparts = (-h) * ev.exact_hvp_parts(lamV.T) - (h * h) * adj["third_parts"]
+                gx = gx + ev.scatter(gparts).T
+                mlam = m3 * lamV
+                gd += (mlam * v).sum()
+                g_a[k] += h * mlam
+                gY += -h * adj["spring_lg"].sum() - h * h * adj["spring_lKw"].sum()
+                hc = -h * adj["hinge_lg"] - h * h * adj["hinge_lKw"]
+                gB += (hc * bw).sum()
+                gS += (hc * (1.0 - bw)).sum()
+                gv = d * mlam
+                _check(gx, "position adjoint", k, s)
+            gx = gx + grad_pos[k]
+        if pinned is not None:
+            # pinned targets are constants; x0 at pinned vertices only reaches positions[0]
+            gx[pinned] = grad_pos[0][pinned]
+            gv[pinned] = 0.0
+        g_const = g_a.sum(dim=(0, 1))
+        return (
+            None,
+            gx,
+            gv,
+            gY * LN10,  # each term is linear in its stiffness k, so d/dlog10 k = ln10 * (term)
+            gB * LN10,
+            gS * LN10,
+            gd,
+            g_const,
+            g_a if ctx.has_avert else None,
+        )
+
+
+def rollout(
+    topology: ClothTopology,
+    x0: torch.Tensor,
+    v0: torch.Tensor | None = None,
+    params: PhysicsParams | None = None,
+    *,
+    num_frames: int,
+    substeps: int = 4,
+    frame_dt: float = 0.02,
+    pinned=None,
+    pinned_positions=None,
+    hessian: str = "projected",
+    solver: str = "auto",
+    tol: float = 1e-10,
+    stats: dict | None = None,
+) -> torch.Tensor:
+    """Simulate ``num_frames`` video frames from (x0, v0); returns positions (num_frames, V, 3) with
+    positions[0] = x0. Differentiable w.r.t. x0, v0 and every tensor in ``params``.
+
+    pinned: vertex indices held exactly; at x0 (pinned_positions None) or at ``pinned_positions``
+    (num_frames, P, 3), linearly interpolated within a frame's substeps (targets get no gradient).
+    hessian: "projected" (PSD element Hessians, default) or "exact" (true Hessian, may be indefinite).
+    solver: "auto" (reused sparse LU + PCG on CPU, Jacobi PCG on other devices), "lu" or "cg".
+    tol: relative residual of every linear solve. stats: if a dict, receives solver counters.
+    Raises SimulationError (naming frame and substep) on NaN/inf.
+    """
+    t = topology
+    dev, dt = t.device, t.dtype
+    x0 = torch.as_tensor(x0).to(device=dev, dtype=dt)
+    if x0.shape != (t.num_vertices, 3):
+        raise ValueError(f"x0 must have shape ({t.num_vertices}, 3), got {tuple(x0.shape)}")
+    v0 = torch.zeros_like(x0) if v0 is None else torch.as_tensor(v0).to(device=dev, dtype=dt)
+    if params is None:
+        params = PhysicsParams.default(device=dev, dtype=dt)
+    if num_frames < 1:
+        raise ValueError("num_frames must be >= 1")
+    a_vert = params.a_vert
+    if a_vert is not None:
+        a_vert = a_vert.to(device=dev, dtype=dt)
+        if a_vert.shape != (num_frames - 1, t.num_vertices, 3):
+            raise ValueError(
+                f"a_vert must have shape ({num_frames - 1}, {t.num_vertices}, 3), got {tuple(a_vert.shape)}"
+            )
+    sim = _Sim(t, num_frames, substeps, frame_dt, pinned, pinned_positions, hessian, solver, tol)
+    f = dict(device=dev, dtype=dt)
+
+    def sc(v):
+        return torch.as_tensor(v).to(**f).reshape(())
+
+    out = _RolloutFn.apply(
+        sim, x0, v0, sc(params.log10_Y), sc(params.log10_B), sc(params.log10_S), sc(params.damping),
+        torch.as_tensor(params.a_const).to(**f).reshape(3), a_vert,
+    )
+    if stats is not None:
+        stats.update(sim.stats.as_dict())
+    return out

@@ -1,0 +1,217 @@
+"""Cloth topology from a quad mesh: stretch springs, bend/shear hinges, lumped masses, and the fixed
+sparsity pattern of the (3V x 3V) system matrix M + h^2 K.
+
+Everything per element is stored elements-last (index arrays (n,), rest values (n,)), which is what the
+closed-form kernels in ``saft.physics.energy`` consume.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import torch
+
+ARCCOS_GUARD = 0.99  # theta = arccos(0.99 * e1_hat . e2_hat) keeps arccos differentiable (REFERENCE.md)
+BEND_THRESHOLD_RAD = math.pi / 4.0  # rest angle < 45 deg -> bending hinge, else shearing hinge
+DEFAULT_DENSITY = 0.1  # kg / m^2 (paper, supplementary "Mass")
+
+
+@dataclass(frozen=True)
+class ClothTopology:
+    """Springs, hinges, masses and the matrix pattern of one cloth template.
+
+    Tensors (on ``device``, floating ones in ``dtype``):
+      edges     (E, 2) int64   stretch springs on the unique quad edges (i < j)
+      rest_len  (E,)           template edge lengths L0
+      hinges    (H, 3) int64   (n1, v, n2): vertex v and a pair of its quad-edge neighbours
+      rest_angle (H,)          theta0 = arccos(0.99 * e1_hat . e2_hat), e1 = v - n1, e2 = n2 - v
+      is_bend   (H,) bool      theta0 < 45 deg (bending, stiffness B), else shearing (stiffness S)
+      bend_w    (H,)           1.0 for bending hinges, 0.0 for shearing hinges (same as is_bend, float)
+      mass      (V,)           lumped masses: each triangle gives area/3 to its corners, times density
+    Host (numpy) data describing the scalar CSR pattern of the symmetric (3V x 3V) system matrix:
+      csr_indptr, csr_indices  int32/int64 numpy arrays (rows sorted; the pattern is symmetric)
+      spring_idx (4*9*E,), hinge_idx (9*9*H,), diag_idx (3V,): positions in the CSR data array of every
+      element-Hessian entry, in the elements-last order the kernels produce (block, row, col, element).
+      scatter_idx (2E + 3H,): vertex of every per-element vector entry (springs i, j; hinges n1, v, n2).
+    """
+
+    num_vertices: int
+    edges: torch.Tensor
+    rest_len: torch.Tensor
+    hinges: torch.Tensor
+    rest_angle: torch.Tensor
+    is_bend: torch.Tensor
+    bend_w: torch.Tensor
+    mass: torch.Tensor
+    csr_indptr: np.ndarray = field(repr=False)
+    csr_indices: np.ndarray = field(repr=False)
+    spring_idx: torch.Tensor = field(repr=False)
+    hinge_idx: torch.Tensor = field(repr=False)
+    diag_idx: torch.Tensor = field(repr=False)
+    scatter_idx: torch.Tensor = field(repr=False)
+    template: torch.Tensor = field(repr=False)
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_quads(
+        cls,
+        vertices,
+        quads,
+        density: float = DEFAULT_DENSITY,
+        *,
+        device: torch.device | str | None = None,
+        dtype: torch.dtype = torch.float64,
+    ) -> "ClothTopology":
+        """Build the topology of any quad mesh (boundaries and irregular vertices included)."""
+        verts = _as_numpy(vertices).astype(np.float64).reshape(-1, 3)
+        quads = _as_numpy(quads).astype(np.int64).reshape(-1, 4)
+        V = verts.shape[0]
+        if quads.size and (quads.min() < 0 or quads.max() >= V):
+            raise ValueError("a quad refers to a vertex that does not exist")
+
+        # springs: unique quad edges
+        e = np.concatenate([quads[:, [0, 1]], quads[:, [1, 2]], quads[:, [2, 3]], quads[:, [3, 0]]], axis=0)
+        e = np.unique(np.sort(e, axis=1), axis=0)
+        e = e[e[:, 0] != e[:, 1]]
+        rest_len = np.linalg.norm(verts[e[:, 1]] - verts[e[:, 0]], axis=1)
+
+        # hinges: every vertex, every unordered pair of its quad-edge neighbours
+        nbr_lists = [[] for _ in range(V)]
+        for a, b in e:
+            nbr_lists[a].append(b)
+            nbr_lists[b].append(a)
+        hinge_rows = []
+        for v in range(V):
+            nb = sorted(nbr_lists[v])
+            for i in range(len(nb)):
+                for j in range(i + 1, len(nb)):
+                    hinge_rows.append((nb[i], v, nb[j]))
+        hinges = np.asarray(hinge_rows, dtype=np.int64).reshape(-1, 3)
+        e1 = verts[hinges[:, 1]] - verts[hinges[:, 0]]
+        e2 = verts[hinges[:, 2]] - verts[hinges[:, 1]]
+        q = np.einsum("ij,ij->i", e1, e2) / np.maximum(
+            np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1), 1e-300
+        )
+        rest_angle = np.arccos(ARCCOS_GUARD * np.clip(q, -1.0, 1.0))
+        is_bend = rest_angle < BEND_THRESHOLD_RAD
+
+        # lumped masses from the triangulation (a,b,c), (a,c,d)
+        tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]], axis=0)
+        area = 0.5 * np.linalg.norm(
+            np.cross(verts[tris[:, 1]] - verts[tris[:, 0]], verts[tris[:, 2]] - verts[tris[:, 0]]), axis=1
+        )
+        mass = np.zeros(V)
+        np.add.at(mass, tris.reshape(-1), np.repeat(area / 3.0, 3) * density)
+        if np.any(mass <= 0):
+            bad = int(np.flatnonzero(mass <= 0)[0])
+            raise ValueError(f"vertex {bad} has no positive mass (isolated vertex or degenerate quads)")
+
+        indptr, indices, spring_idx, hinge_idx, diag_idx = _csr_pattern(V, e, hinges)
+        dev = torch.device(device) if device is not None else torch.device("cpu")
+        f = dict(device=dev, dtype=dtype)
+        i = dict(device=dev, dtype=torch.int64)
+        return cls(
+            num_vertices=V,
+            edges=torch.as_tensor(e, **i),
+            rest_len=torch.as_tensor(rest_len, **f),
+            hinges=torch.as_tensor(hinges, **i),
+            rest_angle=torch.as_tensor(rest_angle, **f),
+            is_bend=torch.as_tensor(is_bend, device=dev),
+            bend_w=torch.as_tensor(is_bend.astype(np.float64), **f),
+            mass=torch.as_tensor(mass, **f),
+            csr_indptr=indptr,
+            csr_indices=indices,
+            spring_idx=torch.as_tensor(spring_idx, **i),
+            hinge_idx=torch.as_tensor(hinge_idx, **i),
+            diag_idx=torch.as_tensor(diag_idx, **i),
+            scatter_idx=torch.as_tensor(np.concatenate([e[:, 0], e[:, 1], hinges[:, 0], hinges[:, 1], hinges[:, 2]]), **i),
+            template=torch.as_tensor(verts, **f),
+        )
+
+    @classmethod
+    def from_mesh(cls, mesh, density: float = DEFAULT_DENSITY, **kw) -> "ClothTopology":
+        """From a ``saft.scene.mesh.QuadMesh``."""
+        return cls.from_quads(mesh.vertices, mesh.quads, density, **kw)
+
+    # ------------------------------------------------------------------ device / dtype
+    def to(self, device=None, dtype: torch.dtype | None = None) -> "ClothTopology":
+        """A copy with every tensor on ``device`` and floating tensors in ``dtype``."""
+        changes = {}
+        for name in ("edges", "hinges", "is_bend", "spring_idx", "hinge_idx", "diag_idx", "scatter_idx"):
+            changes[name] = getattr(self, name).to(device=device)
+        for name in ("rest_len", "rest_angle", "bend_w", "mass", "template"):
+            changes[name] = getattr(self, name).to(device=device, dtype=dtype)
+        return replace(self, **changes)
+
+    @property
+    def device(self) -> torch.device:
+        return self.mass.device
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return self.mass.dtype
+
+    @property
+    def num_springs(self) -> int:
+        return int(self.edges.shape[0])
+
+    @property
+    def num_hinges(self) -> int:
+        return int(self.hinges.shape[0])
+
+    @property
+    def nnz(self) -> int:
+        return int(self.csr_indices.shape[0])
+
+
+def _as_numpy(a) -> np.ndarray:
+    if isinstance(a, torch.Tensor):
+        return a.detach().cpu().numpy()
+    return np.asarray(a)
+
+
+def _csr_pattern(V: int, edges: np.ndarray, hinges: np.ndarray):
+    """Scalar CSR pattern of the 3x3-block sparse symmetric matrix touched by all elements, and the
+    CSR-data position of every element-Hessian entry (elements-last order)."""
+    # block pairs (a, b) touched by each element block, in kernel order
+    sa = np.stack([edges[:, 0], edges[:, 0], edges[:, 1], edges[:, 1]])  # (4, E): ii, ij, ji, jj
+    sb = np.stack([edges[:, 0], edges[:, 1], edges[:, 0], edges[:, 1]])
+    hv = hinges.T  # (3, H): n1, v, n2
+    ha = np.repeat(hv, 3, axis=0)  # (9, H): blocks (r, c) for r, c in (n1, v, n2), row-major
+    hb = np.tile(hv, (3, 1))
+    diag = np.arange(V)
+    all_a = np.concatenate([sa.ravel(), ha.ravel(), diag])
+    all_b = np.concatenate([sb.ravel(), hb.ravel(), diag])
+    key = all_a * V + all_b
+    ukey = np.unique(key)  # sorted by (row block, col block)
+    brow, bcol = ukey // V, ukey % V
+    cnt = np.bincount(brow, minlength=V)
+    bptr = np.concatenate([[0], np.cumsum(cnt)])
+    rank = np.arange(len(ukey)) - bptr[brow]
+
+    # scalar CSR: row 3a+r holds, for each block col b of block row a (sorted), columns 3b, 3b+1, 3b+2
+    row_len = np.repeat(3 * cnt, 3)
+    indptr = np.concatenate([[0], np.cumsum(row_len)]).astype(np.int64)
+    indices = np.empty(indptr[-1], dtype=np.int64)
+    for r in range(3):
+        # positions of (3a+r, 3b+c)
+        for c in range(3):
+            pos = 9 * bptr[brow] + 3 * r * cnt[brow] + 3 * rank + c
+            indices[pos] = 3 * bcol + c
+
+    def positions(a, b):
+        # a, b: (nb, n) block rows/cols -> (nb, 3, 3, n) data positions
+        k = np.searchsorted(ukey, a * V + b)
+        ar = a
+        base = 9 * bptr[ar] + 3 * rank[k]
+        r = np.arange(3)[None, :, None, None]
+        c = np.arange(3)[None, None, :, None]
+        return base[:, None, None, :] + 3 * r * cnt[ar][:, None, None, :] + c
+
+    spring_idx = positions(sa, sb).reshape(-1)
+    hinge_idx = positions(ha, hb).reshape(-1)
+    dpos = positions(diag[None, :], diag[None, :])[0]  # (3, 3, V)
+    diag_idx = np.stack([dpos[0, 0], dpos[1, 1], dpos[2, 2]], axis=1).reshape(-1)  # (3V,) order v*3+k
+    return indptr, indices, spring_idx, hinge_idx, diag_idx
