@@ -1,0 +1,126 @@
+"""AppearanceConfig: the phase-3 settings with the paper's defaults, and the automatic CPU profile."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields, replace
+
+
+@dataclass
+class AppearanceConfig:
+    """Settings of the appearance phase. Defaults are the paper's (REFERENCE.md "Appearance estimation")."""
+
+    enabled: bool = True
+    profile: str = "paper"               # "paper" or "cpu" (informational; stated in the output)
+    epochs: int = 2000
+    # colour schedule of the environment map: grey 800, blend 400, colour 800 of 2000 epochs
+    grey_fraction: float = 0.4
+    blend_fraction: float = 0.2
+    # texture parametrisation: "decoder" (paper) or "texels" (plain per-texel maps)
+    maps: str = "decoder"
+    tile_size: int = 128                 # decoder tile side (4·2^k)
+    num_tiles: int = 16                  # tiles on a square grid (16 → 4×4)
+    tile_overlap: int = 10               # → maps of 4·(128−10) = 472 px
+    latent_channels: int = 512           # fixed random latent latent_channels×4×4
+    texel_size: int = 472                # side of the per-texel maps (maps="texels")
+    min_roughness: float = 1e-3
+    init_diffuse: float = 0.5
+    init_roughness: float = 0.5
+    init_metallic: float = 0.5
+    lr_decoder: float = 2e-4
+    betas_decoder: tuple[float, float] = (0.99, 0.9999)
+    lr_texels: float = 2e-2
+    # environment map (lat-long, linear radiance)
+    env_height: int = 256
+    env_width: int = 512
+    env_init: float = 0.5
+    env_min: float = 0.01
+    lr_env: float = 1e-2
+    betas_env: tuple[float, float] = (0.9, 0.999)
+    lambda_env_l1: float = 1e-5          # L1 amplitude of the env map
+    lambda_env_smooth: float = 5e-5      # finite-difference smoothness of the env map
+    # image loss: "srgb" (the paper's sRGB MSE) or "srgb_linearised" (its first-order form around the
+    # target, unbiased under 1-spp Monte Carlo noise; see fit.masked_linearised_srgb_mse)
+    loss: str = "srgb_linearised"
+    # rendering
+    spp: int = 1                         # samples per pixel while fitting
+    max_depth: int = 2                   # 2 = direct lighting with shadows (emitter + BSDF sampling, MIS)
+    render_spp: int = 64                 # samples per pixel of the final re-renders / novel view
+    image_scale: float = 1.0             # fit at this fraction of the input resolution
+    frames_per_epoch: int = 0            # 0 = every frame in every epoch; else a random mini-batch
+    seed: int = 0
+    checkpoint_every: int = 50           # epochs between checkpoint callbacks
+
+    def validate(self) -> None:
+        from saft.errors import SaftInputError
+
+        def bad(key, why):
+            raise SaftInputError(f"appearance.{key}", why)
+
+        if self.epochs < 1:
+            bad("epochs", "must be >= 1")
+        if self.maps not in ("decoder", "texels"):
+            bad("maps", "must be 'decoder' or 'texels'")
+        if not (0 <= self.grey_fraction and 0 <= self.blend_fraction and self.grey_fraction + self.blend_fraction <= 1):
+            bad("grey_fraction", "grey_fraction + blend_fraction must lie in [0, 1]")
+        if self.loss not in ("srgb", "srgb_linearised"):
+            bad("loss", "must be 'srgb' or 'srgb_linearised'")
+        if self.spp < 1 or self.render_spp < 1:
+            bad("spp", "must be >= 1")
+        if not (0 < self.image_scale <= 1):
+            bad("image_scale", "must lie in (0, 1]")
+        if self.frames_per_epoch < 0:
+            bad("frames_per_epoch", "must be >= 0")
+        if self.env_height < 2 or self.env_width < 2:
+            bad("env_height", "env map too small")
+        if self.max_depth < 2:
+            bad("max_depth", "must be >= 2 (1 shows only the hidden background)")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @staticmethod
+    def from_dict(d: dict) -> "AppearanceConfig":
+        names = {f.name for f in fields(AppearanceConfig)}
+        kw = {k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items() if k in names}
+        return AppearanceConfig(**kw)
+
+
+def paper_profile() -> AppearanceConfig:
+    """The paper's settings (2000 epochs, 472² decoder maps, 256×512 env map, 1 spp, all frames)."""
+    return AppearanceConfig()
+
+
+def cpu_profile(base: AppearanceConfig | None = None) -> AppearanceConfig:
+    """The automatic CPU profile (chosen by measurement on a shared 2-core CPU; see the package docstring).
+
+    Fewer epochs, mini-batches of frames, half resolution, smaller decoder tiles (maps 4·(32−4) = 112 px),
+    a smaller latent, and learning rates raised to match the shorter schedule. The env map keeps its
+    256×512 size (its cost is negligible next to ray tracing).
+    """
+    base = base or AppearanceConfig()
+    return replace(
+        base,
+        profile="cpu",
+        epochs=150,
+        frames_per_epoch=4,
+        image_scale=0.5,
+        tile_size=32,
+        tile_overlap=4,
+        latent_channels=128,
+        texel_size=112,
+        lr_decoder=2e-3,
+        betas_decoder=(0.9, 0.999),
+        lr_texels=5e-2,
+        lr_env=3e-2,
+        render_spp=32,
+        checkpoint_every=25,
+    )
+
+
+def profile_for_device(device, base: AppearanceConfig | None = None) -> AppearanceConfig:
+    """The CPU profile on a CPU device, the paper's settings (or `base`) on CUDA."""
+    kind = getattr(device, "type", None) or str(device or "cpu").split(":")[0]
+    if kind == "cpu":
+        return cpu_profile(base)
+    return base or paper_profile()
+

@@ -1,0 +1,330 @@
+"""Phase 3: fit SVBRDF maps + environment map to the video with the motion frozen; re-render; save."""
+
+from __future__ import annotations
+
+import copy
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+import torch.nn.functional as Fnn
+
+from saft.appearance.config import AppearanceConfig
+from saft.appearance.params import (EnvironmentMap, TexelMaps, TextureDecoder, colour_weight, env_amplitude,
+                                    env_smoothness, linear_to_srgb, srgb_to_linear)
+from saft.appearance.renderer import ClothRenderer
+from saft.errors import SaftInputError
+from saft.scene.camera import Camera
+
+
+@dataclass
+class AppearanceResult:
+    """What phase 3 produces. Maps row 0 = TOP of the texture (OBJ convention, v = 1); all numpy float32.
+
+    diffuse (S, S, 3) linear albedo, roughness (S, S), metallic (S, S), envmap (He, We, 3) linear radiance
+    (the map as rendered at the last epoch, i.e. after the colour schedule), losses: the image loss (masked
+    sRGB MSE, mean over the epoch's frames) per epoch.
+    """
+
+    diffuse: np.ndarray
+    roughness: np.ndarray
+    metallic: np.ndarray
+    envmap: np.ndarray
+    losses: list[float]
+    config: AppearanceConfig
+    seconds: float = 0.0
+    state: dict | None = field(default=None, repr=False)
+
+
+def _build_model(cfg: AppearanceConfig) -> torch.nn.Module:
+    init = dict(min_roughness=cfg.min_roughness, init_diffuse=cfg.init_diffuse, init_roughness=cfg.init_roughness,
+                init_metallic=cfg.init_metallic)
+    if cfg.maps == "decoder":
+        return TextureDecoder(tile_size=cfg.tile_size, num_tiles=cfg.num_tiles, overlap=cfg.tile_overlap,
+                              latent_channels=cfg.latent_channels, seed=cfg.seed, **init)
+    return TexelMaps(size=cfg.texel_size, **init)
+
+
+def _resize_targets(rgb: np.ndarray, mask: np.ndarray, camera: Camera, scale: float):
+    rgb_t = torch.as_tensor(np.asarray(rgb, dtype=np.float32))
+    mask_t = torch.as_tensor(np.asarray(mask, dtype=np.float32))
+    if scale >= 1.0:
+        return rgb_t, mask_t, camera
+    cam = camera.scaled(scale)
+    size = (cam.height, cam.width)
+    rgb_s = Fnn.interpolate(rgb_t.permute(0, 3, 1, 2), size=size, mode="area").permute(0, 2, 3, 1)
+    mask_s = Fnn.interpolate(mask_t[:, None], size=size, mode="area")[:, 0]
+    return rgb_s.contiguous(), mask_s.contiguous(), cam
+
+
+def masked_srgb_mse(pred_linear: torch.Tensor, target_srgb: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Mean squared sRGB error inside the (soft) mask."""
+    diff = (linear_to_srgb(pred_linear) - target_srgb) ** 2
+    w = mask[..., None]
+    return (diff * w).sum() / (w.sum() * 3.0).clamp_min(1e-8)
+
+
+def srgb_slope(target_srgb: torch.Tensor, max_slope: float = 12.92) -> torch.Tensor:
+    """d sRGB / d linear evaluated at the target colour (clamped), for the linearised sRGB loss."""
+    lin = srgb_to_linear(target_srgb.clamp(0.0, 1.0))
+    slope = torch.where(lin <= 0.0031308, torch.full_like(lin, 12.92),
+                        (1.055 / 2.4) * lin.clamp_min(0.0031308) ** (1.0 / 2.4 - 1.0))
+    return slope.clamp(max=max_slope)
+
+
+def masked_linearised_srgb_mse(pred_linear: torch.Tensor, target_linear: torch.Tensor, slope: torch.Tensor,
+                               mask: torch.Tensor) -> torch.Tensor:
+    """The sRGB MSE to first order around the target: mean (sRGB'(t)·(x − t))² inside the mask.
+
+    Unlike the plain sRGB MSE it is quadratic in the rendered radiance, so with Mitsuba's decorrelated
+    primal/adjoint samples its gradient is unbiased even at 1 spp (the plain sRGB loss of a 1-spp image is
+    biased by the concave sRGB curve: fits come out too bright).
+    """
+    diff = (slope * (pred_linear - target_linear)) ** 2
+    w = mask[..., None]
+    return (diff * w).sum() / (w.sum() * 3.0).clamp_min(1e-8)
+
+
+def _square_pixels(camera: Camera) -> Camera:
+    """Mitsuba needs fx == fy; `Camera.scaled` may make them differ by a rounding ratio: use their mean."""
+    if camera.fx == camera.fy:
+        return camera
+    K = camera.K.copy()
+    K[0, 0] = K[1, 1] = 0.5 * (camera.fx + camera.fy)
+    return Camera(K, camera.world_to_camera, camera.width, camera.height)
+
+
+def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rgb, target_mask,
+                   config: AppearanceConfig | None = None, device="cpu",
+                   progress: Callable[[int, int, float], None] | None = None,
+                   resume_state: dict | None = None,
+                   checkpoint: Callable[[dict], None] | None = None) -> AppearanceResult:
+    """Estimate diffuse/roughness/metallic maps and an environment map from frames with frozen geometry.
+
+    vertices_per_frame (F, V, 3) world positions; triangles (T, 3); uvs (V, 2) OBJ convention; camera: the
+    OpenCV camera of the frames; target_rgb (F, H, W, 3) sRGB in [0, 1]; target_mask (F, H, W) in [0, 1].
+    progress(epoch, epochs, loss) is called after each epoch; checkpoint(state) every
+    config.checkpoint_every epochs and at the end, with a state dict that `resume_state=` continues from.
+    """
+    cfg = copy.deepcopy(config) if config is not None else AppearanceConfig()
+    cfg.validate()
+    verts = np.asarray(vertices_per_frame, dtype=np.float64)
+    if verts.ndim != 3 or verts.shape[2] != 3:
+        raise SaftInputError("vertices_per_frame", f"expected (F, V, 3), got {verts.shape}")
+    rgb = np.asarray(target_rgb, dtype=np.float32)
+    mask = np.asarray(target_mask, dtype=np.float32)
+    n_frames = verts.shape[0]
+    if rgb.shape[:1] != (n_frames,) or rgb.ndim != 4 or rgb.shape[3] != 3 or mask.shape != rgb.shape[:3]:
+        raise SaftInputError("target_rgb", f"frames {rgb.shape} / masks {mask.shape} do not match {n_frames} "
+                                           "frames of (H, W, 3) / (H, W)")
+    if rgb.shape[1:3] != (camera.height, camera.width):
+        raise SaftInputError("target_rgb", f"images are {rgb.shape[2]}x{rgb.shape[1]}, the camera is "
+                                           f"{camera.width}x{camera.height}")
+    dev = torch.device(device)
+    rgb_t, mask_t, cam = _resize_targets(rgb, mask, camera, cfg.image_scale)
+    cam = _square_pixels(cam)
+    rgb_t, mask_t = rgb_t.to(dev), mask_t.to(dev)
+    lin_t = srgb_to_linear(rgb_t.clamp(0.0, 1.0))
+    slope_t = srgb_slope(rgb_t)
+
+    torch.manual_seed(cfg.seed)
+    model = _build_model(cfg).to(dev)
+    env = EnvironmentMap(cfg.env_height, cfg.env_width, cfg.env_init, cfg.env_min).to(dev)
+    if cfg.maps == "decoder":
+        opt_maps = torch.optim.Adam(model.parameters(), lr=cfg.lr_decoder, betas=tuple(cfg.betas_decoder))
+    else:
+        opt_maps = torch.optim.Adam(model.parameters(), lr=cfg.lr_texels)
+    opt_env = torch.optim.Adam(env.parameters(), lr=cfg.lr_env, betas=tuple(cfg.betas_env))
+    losses: list[float] = []
+    start_epoch = 0
+    if resume_state is not None:
+        model.load_state_dict(resume_state["model"])
+        env.load_state_dict(resume_state["env"])
+        opt_maps.load_state_dict(resume_state["opt_maps"])
+        opt_env.load_state_dict(resume_state["opt_env"])
+        losses = list(resume_state["losses"])
+        start_epoch = int(resume_state["epoch"])
+
+    size = model.size
+    renderer = ClothRenderer(triangles, uvs, cam, device=dev, max_depth=cfg.max_depth, map_shape=(size, size),
+                             env_shape=(cfg.env_height, cfg.env_width))
+
+    def state(epoch: int) -> dict:
+        return {"epoch": epoch, "model": copy.deepcopy(model.state_dict()), "env": copy.deepcopy(env.state_dict()),
+                "opt_maps": copy.deepcopy(opt_maps.state_dict()), "opt_env": copy.deepcopy(opt_env.state_dict()),
+                "losses": list(losses), "config": cfg.to_dict()}
+
+    t0 = time.perf_counter()
+    batch = cfg.frames_per_epoch if 0 < cfg.frames_per_epoch < n_frames else n_frames
+    for epoch in range(start_epoch, cfg.epochs):
+        w = colour_weight(epoch, cfg.epochs, cfg.grey_fraction, cfg.blend_fraction)
+        if batch < n_frames:
+            frames = np.sort(np.random.default_rng(cfg.seed * 100_003 + epoch).choice(n_frames, batch, replace=False))
+        else:
+            frames = np.arange(n_frames)
+        maps = model()
+        env_eff = env(w)
+        leaves = {k: v.detach().requires_grad_(True) for k, v in maps.items()}
+        env_leaf = env_eff.detach().requires_grad_(True)
+        epoch_loss = 0.0
+        for f in frames:
+            renderer.set_vertices(verts[f])
+            img = renderer.render(leaves["diffuse"], leaves["roughness"], leaves["metallic"], env_leaf,
+                                  spp=cfg.spp, seed=epoch * n_frames + int(f))
+            if cfg.loss == "srgb":
+                loss = masked_srgb_mse(img, rgb_t[f], mask_t[f])
+                report = loss
+            else:
+                loss = masked_linearised_srgb_mse(img, lin_t[f], slope_t[f], mask_t[f])
+                with torch.no_grad():
+                    report = masked_srgb_mse(img, rgb_t[f], mask_t[f])
+            (loss / len(frames)).backward()
+            epoch_loss += float(report.detach()) / len(frames)
+        reg = cfg.lambda_env_l1 * env_amplitude(env_eff) + cfg.lambda_env_smooth * env_smoothness(env_eff)
+        opt_maps.zero_grad(set_to_none=True)
+        opt_env.zero_grad(set_to_none=True)
+        outs = [maps[k] for k in leaves] + [env_eff]
+        grads = [leaves[k].grad if leaves[k].grad is not None else torch.zeros_like(leaves[k]) for k in leaves]
+        grads.append(env_leaf.grad if env_leaf.grad is not None else torch.zeros_like(env_leaf))
+        torch.autograd.backward(outs + [reg], grads + [torch.ones_like(reg)])
+        for p in list(model.parameters()) + list(env.parameters()):
+            if p.grad is not None and not torch.isfinite(p.grad).all():
+                p.grad = None  # skip a non-finite step (Monte Carlo outlier)
+        opt_maps.step()
+        opt_env.step()
+        env.clamp_()
+        losses.append(epoch_loss)
+        if progress is not None:
+            progress(epoch + 1, cfg.epochs, epoch_loss)
+        if checkpoint is not None and cfg.checkpoint_every > 0 and (epoch + 1) % cfg.checkpoint_every == 0 \
+                and epoch + 1 < cfg.epochs:
+            checkpoint(state(epoch + 1))
+
+    final_state = state(cfg.epochs)
+    if checkpoint is not None:
+        checkpoint(final_state)
+    with torch.no_grad():
+        maps = model()
+        env_final = env(colour_weight(cfg.epochs - 1, cfg.epochs, cfg.grey_fraction, cfg.blend_fraction))
+    return AppearanceResult(
+        diffuse=maps["diffuse"].cpu().numpy().astype(np.float32),
+        roughness=maps["roughness"].cpu().numpy().astype(np.float32),
+        metallic=maps["metallic"].cpu().numpy().astype(np.float32),
+        envmap=env_final.cpu().numpy().astype(np.float32),
+        losses=losses,
+        config=cfg,
+        seconds=time.perf_counter() - t0,
+        state=final_state,
+    )
+
+
+# ---------------------------------------------------------------------------------------------- rendering
+def render_appearance(result: AppearanceResult, vertices, triangles, uvs, camera: Camera, spp: int | None = None,
+                      device="cpu", seed: int = 0) -> np.ndarray:
+    """Re-render with the estimated appearance: sRGB float32 (H, W, 3) for vertices (V, 3), or (F, H, W, 3)
+    for (F, V, 3). Black background. spp defaults to result.config.render_spp."""
+    v = np.asarray(vertices, dtype=np.float64)
+    single = v.ndim == 2
+    v = v[None] if single else v
+    spp = int(spp or result.config.render_spp)
+    renderer = ClothRenderer(triangles, uvs, _square_pixels(camera), device=device,
+                             max_depth=result.config.max_depth, map_shape=result.roughness.shape,
+                             env_shape=result.envmap.shape[:2])
+    maps = [torch.as_tensor(a) for a in (result.diffuse, result.roughness, result.metallic, result.envmap)]
+    out = []
+    with torch.no_grad():
+        for f in range(v.shape[0]):
+            renderer.set_vertices(v[f])
+            img = renderer.render(*maps, spp=spp, seed=seed + f)
+            out.append(linear_to_srgb(img).cpu().numpy().astype(np.float32))
+    out = np.stack(out)
+    return out[0] if single else out
+
+
+def orbit_camera(camera: Camera, center, angle_deg: float, axis=None) -> Camera:
+    """The camera turned by `angle_deg` around the vertical axis through `center` (world point).
+
+    axis defaults to the camera's image-up direction (world). Intrinsics and image size are kept.
+    """
+    c = np.asarray(center, dtype=np.float64).reshape(3)
+    a = np.asarray(camera.up if axis is None else axis, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    th = np.radians(angle_deg)
+    Kx = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    R = np.eye(3) + np.sin(th) * Kx + (1 - np.cos(th)) * Kx @ Kx
+    M = np.eye(4)
+    M[:3, :3] = R
+    M[:3, 3] = c - R @ c
+    c2w = M @ camera.camera_to_world
+    w2c = np.linalg.inv(c2w)
+    w2c[3] = [0, 0, 0, 1]
+    return Camera(camera.K, w2c, camera.width, camera.height)
+
+
+# ---------------------------------------------------------------------------------------------- output
+def _write_exr(path: Path, image: np.ndarray) -> None:
+    """Write a float32 RGB EXR atomically (Mitsuba's Bitmap writer: no extra Python dependency)."""
+    from saft.appearance.mitsuba_backend import load_mitsuba
+    from saft.io_utils import atomic_path
+
+    mi = load_mitsuba("cpu")
+    with atomic_path(path) as tmp:
+        mi.Bitmap(np.ascontiguousarray(image, dtype=np.float32)).write(str(tmp))
+
+
+def _read_exr(path: Path) -> np.ndarray:
+    from saft.appearance.mitsuba_backend import load_mitsuba
+
+    mi = load_mitsuba("cpu")
+    return np.array(mi.Bitmap(str(path)), dtype=np.float32)
+
+
+def env_preview(envmap: np.ndarray) -> np.ndarray:
+    """A displayable sRGB preview of a linear env map (scaled so its 99th percentile is white)."""
+    scale = max(float(np.percentile(envmap, 99)), 1e-6)
+    return linear_to_srgb(torch.as_tensor(envmap / scale)).numpy()
+
+
+def save_appearance(result: AppearanceResult, out_dir) -> dict[str, Path]:
+    """Write DIR/material/{diffuse,roughness,metallic}.png, envmap.exr, envmap.png and appearance.json.
+
+    diffuse.png is sRGB-encoded (as texture files usually are); roughness/metallic are stored linearly;
+    envmap.exr is linear float radiance; envmap.png is a tone-mapped preview. Every file is written
+    atomically. Returns the paths.
+    """
+    from saft.io_utils import atomic_write_json, write_image
+
+    mat = Path(out_dir) / "material"
+    paths = {name: mat / f"{name}.png" for name in ("diffuse", "roughness", "metallic")}
+    paths["envmap"] = mat / "envmap.exr"
+    paths["envmap_preview"] = mat / "envmap.png"
+    paths["summary"] = mat / "appearance.json"
+    write_image(paths["diffuse"], linear_to_srgb(torch.as_tensor(result.diffuse)).numpy())
+    write_image(paths["roughness"], result.roughness)
+    write_image(paths["metallic"], result.metallic)
+    _write_exr(paths["envmap"], result.envmap)
+    write_image(paths["envmap_preview"], env_preview(result.envmap))
+    atomic_write_json(paths["summary"], {"config": result.config.to_dict(), "losses": result.losses,
+                                         "seconds": result.seconds})
+    return paths
+
+
+def load_appearance(out_dir) -> AppearanceResult:
+    """Read what save_appearance wrote (8-bit maps: quantised) back into an AppearanceResult."""
+    from saft.io_utils import read_image
+
+    mat = Path(out_dir) / "material"
+    summary = json.loads((mat / "appearance.json").read_text())
+    return AppearanceResult(
+        diffuse=srgb_to_linear(read_image(mat / "diffuse.png")[..., :3]),
+        roughness=read_image(mat / "roughness.png")[..., 0],
+        metallic=read_image(mat / "metallic.png")[..., 0],
+        envmap=_read_exr(mat / "envmap.exr")[..., :3],
+        losses=list(summary.get("losses", [])),
+        config=AppearanceConfig.from_dict(summary.get("config", {})),
+        seconds=float(summary.get("seconds", 0.0)),
+    )

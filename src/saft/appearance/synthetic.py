@@ -1,0 +1,134 @@
+"""Synthetic appearance scenes (like the paper's SR scenes) for tests and the benchmark.
+
+A hanging 16×16-quad sheet with travelling sine waves (a stand-in until `saft.physics.rollout` drives the
+benchmark), known SVBRDF maps and a known coloured environment map, rendered through Mitsuba at many spp.
+World frame: y UP (Mitsuba's env-map up axis), the sheet hangs in the x-y plane, the camera looks along +z.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from saft.scene.camera import Camera, look_at
+
+
+@dataclass
+class SyntheticScene:
+    vertices: np.ndarray      # (F, V, 3)
+    triangles: np.ndarray     # (T, 3)
+    quads: np.ndarray         # (Q, 4)
+    uvs: np.ndarray           # (V, 2) OBJ convention
+    camera: Camera
+    diffuse: np.ndarray       # (S, S, 3) linear
+    roughness: np.ndarray     # (S, S)
+    metallic: np.ndarray      # (S, S)
+    envmap: np.ndarray        # (He, We, 3) linear
+    rgb: np.ndarray | None = None    # (F, H, W, 3) sRGB renders
+    mask: np.ndarray | None = None   # (F, H, W)
+
+
+def grid_sheet(n_quads: int = 16, size: float = 1.0):
+    """A square sheet of n×n quads in the x-y plane centred at the origin; returns vertices, quads, uvs."""
+    n = n_quads + 1
+    g = np.linspace(-size / 2, size / 2, n)
+    X, Y = np.meshgrid(g, g[::-1])  # row 0 = top (y = +size/2)
+    verts = np.stack([X.ravel(), Y.ravel(), np.zeros(n * n)], axis=1)
+    uvs = np.stack([(X.ravel() / size + 0.5), (Y.ravel() / size + 0.5)], axis=1)
+    quads = []
+    for i in range(n_quads):
+        for j in range(n_quads):
+            a = i * n + j
+            quads.append([a + n, a + n + 1, a + 1, a])  # counter-clockwise seen from -z
+    return verts, np.array(quads, dtype=np.int64), uvs
+
+
+def wave_motion(verts: np.ndarray, n_frames: int = 20, amplitude: float = 0.12, dt: float = 0.04) -> np.ndarray:
+    """Travelling sine waves on a sheet hanging from its top edge (amplitude grows downwards)."""
+    y = verts[:, 1]
+    x = verts[:, 0]
+    hang = (y.max() - y) / max(y.max() - y.min(), 1e-9)
+    out = []
+    for f in range(n_frames):
+        t = f * dt
+        dz = amplitude * hang * (np.sin(2 * np.pi * (1.1 * hang - 1.5 * t)) + 0.5 * np.sin(2 * np.pi * (0.8 * x + 0.9 * t)))
+        dx = 0.05 * hang ** 2 * np.sin(2 * np.pi * 0.7 * t)
+        v = verts.copy()
+        v[:, 2] += dz
+        v[:, 0] += dx
+        v[:, 1] -= 0.5 * amplitude * hang * np.abs(np.sin(2 * np.pi * (1.1 * hang - 1.5 * t))) * 0.3
+        out.append(v)
+    return np.stack(out)
+
+
+def ground_truth_maps(size: int = 128, seed: int = 0):
+    """Diffuse with coloured checks and stripes, roughness and metallic with their own patterns."""
+    rng = np.random.default_rng(seed)
+    u, v = np.meshgrid(np.linspace(0, 1, size), np.linspace(0, 1, size))
+    checks = ((np.floor(u * 6) + np.floor(v * 6)) % 2)[..., None]
+    c1, c2 = np.array([0.65, 0.18, 0.12]), np.array([0.15, 0.35, 0.6])
+    diffuse = checks * c1 + (1 - checks) * c2
+    stripe = (np.sin(2 * np.pi * 14 * (u + 0.3 * v)) > 0.6)[..., None]
+    diffuse = np.where(stripe, np.array([0.8, 0.75, 0.3]), diffuse)
+    diffuse = np.clip(diffuse + 0.02 * rng.standard_normal(diffuse.shape), 0.02, 0.95)
+    roughness = 0.35 + 0.4 * (0.5 + 0.5 * np.sin(2 * np.pi * 2 * v))
+    metallic = np.where((u - 0.7) ** 2 + (v - 0.3) ** 2 < 0.03, 0.6, 0.0)
+    return diffuse.astype(np.float32), roughness.astype(np.float32), metallic.astype(np.float32)
+
+
+def ground_truth_envmap(height: int = 256, width: int = 512) -> np.ndarray:
+    """A coloured sky: bluish top, warm ground, a bright sun-like blob (linear radiance)."""
+    th = (np.arange(height) + 0.5) / height * np.pi          # 0 = +y (up)
+    ph = (np.arange(width) + 0.5) / width * 2 * np.pi
+    TH, PH = np.meshgrid(th, ph, indexing="ij")
+    up = np.cos(TH)[..., None]
+    sky = np.array([0.35, 0.5, 0.9]) * np.clip(up, 0, 1) + np.array([0.5, 0.4, 0.3]) * np.clip(-up, 0, 1) + 0.25
+    d = np.stack([np.sin(TH) * np.cos(PH), np.cos(TH), np.sin(TH) * np.sin(PH)], -1)
+    for direction, colour, sharp in (([0.3, 0.6, -0.75], [6.0, 5.0, 3.5], 40.0), ([-0.8, 0.2, -0.5], [1.0, 1.5, 2.5], 12.0)):
+        s = np.asarray(direction) / np.linalg.norm(direction)
+        sky = sky + np.asarray(colour) * np.exp(sharp * ((d @ s)[..., None] - 1))
+    return sky.astype(np.float32)
+
+
+def make_scene(n_frames: int = 20, image_size: int = 200, map_size: int = 128, n_quads: int = 16,
+               env_shape=(256, 512), render_spp: int = 128, render: bool = True, device="cpu",
+               seed: int = 0) -> SyntheticScene:
+    """Build (and by default render) the synthetic scene; the images are sRGB, the masks exact coverage."""
+    verts0, quads, uvs = grid_sheet(n_quads)
+    motion = wave_motion(verts0, n_frames)
+    tri = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]], axis=0)
+    f = 1.25 * image_size
+    K = np.array([[f, 0, (image_size - 1) / 2], [0, f, (image_size - 1) / 2], [0, 0, 1.0]])
+    cam = look_at([0.35, 0.25, -1.7], [0.0, -0.05, 0.0], [0, 1, 0], K, image_size, image_size)
+    diffuse, rough, metal = ground_truth_maps(map_size, seed)
+    env = ground_truth_envmap(*env_shape)
+    scene = SyntheticScene(motion, tri, quads, uvs, cam, diffuse, rough, metal, env)
+    if render:
+        scene.rgb, scene.mask = render_targets(scene, render_spp, device=device)
+    return scene
+
+
+def render_targets(scene: SyntheticScene, spp: int = 128, device="cpu", camera: Camera | None = None,
+                   vertices: np.ndarray | None = None):
+    """sRGB renders (F, H, W, 3) of the scene's ground-truth appearance and coverage masks (F, H, W)."""
+    import torch
+
+    from saft.appearance.params import linear_to_srgb
+    from saft.appearance.renderer import ClothRenderer
+
+    cam = camera or scene.camera
+    verts = scene.vertices if vertices is None else vertices
+    r = ClothRenderer(scene.triangles, scene.uvs, cam, device=device, map_shape=scene.roughness.shape,
+                      env_shape=scene.envmap.shape[:2])
+    white = np.ones_like(scene.diffuse)
+    rgbs, masks = [], []
+    for f in range(verts.shape[0]):
+        r.set_vertices(verts[f])
+        img = r.render_numpy(scene.diffuse, scene.roughness, scene.metallic, scene.envmap, spp=spp, seed=f)
+        rgbs.append(linear_to_srgb(torch.as_tensor(img)).numpy())
+        # coverage: a white, rough, non-metal cloth under a constant bright env → any hit is > 0
+        cov = r.render_numpy(white, np.ones_like(scene.roughness), np.zeros_like(scene.metallic),
+                             np.full_like(scene.envmap, 10.0), spp=16, seed=f)
+        masks.append((cov.max(axis=2) > 1e-3).astype(np.float32))
+    return np.stack(rgbs).astype(np.float32), np.stack(masks).astype(np.float32)
