@@ -59,7 +59,7 @@ def test_p2s_picks_the_nearest_of_two_triangles():
 
 
 def test_p2s_exact_against_brute_force_far_and_near():
-    """Candidates + certification must equal the minimum over ALL triangles, also for far points."""
+    """The pruned search must equal the minimum over ALL triangles, near and far, for any patch size."""
     v, f = grid_sheet(12, 0.3, wave=0.03)
     rng = np.random.default_rng(1)
     pts = np.concatenate([
@@ -70,8 +70,8 @@ def test_p2s_exact_against_brute_force_far_and_near():
     T = len(tris)
     cp = trimesh.triangles.closest_point(np.tile(tris, (len(pts), 1, 1)), np.repeat(pts, T, axis=0))
     brute = np.linalg.norm(cp - np.repeat(pts, T, axis=0), axis=1).reshape(-1, T).min(axis=1)
-    for ks in [(16, 64, 256), (2,), (1, 3)]:
-        closest, dist, tri = closest_points_on_mesh(v, f, pts, ks=ks)
+    for patch_size, chunk in [(32, 8192), (1, 7), (4, 100), (10_000, 64)]:
+        closest, dist, tri = closest_points_on_mesh(v, f, pts, patch_size=patch_size, chunk=chunk)
         np.testing.assert_allclose(dist, brute, rtol=0, atol=1e-12)
         np.testing.assert_allclose(np.linalg.norm(closest - pts, axis=1), dist, atol=1e-12)
         own = trimesh.triangles.closest_point(tris[tri], pts)  # the reported triangle gives that point
@@ -154,3 +154,21 @@ def test_depth_error_over_pixels_valid_in_both():
         depth_error(np.ones((2, 2)), gt)
     seq = evaluate_sequence([TRI_V], TRI_F, [TRI_V], depth_pairs=[(rendered, gt)])
     assert seq["per_frame"]["depth_cm"] == [pytest.approx(20.0)]
+
+
+def test_p2s_exact_with_folds_and_degenerate_triangles():
+    """A sheet folded back onto itself (opposite normals in one patch) plus zero-area triangles."""
+    v, f = grid_sheet(6, 0.2, wave=0.02)
+    folded = v * [1.0, 1.0, -1.0] + [0.0, 0.0, 0.05]
+    degenerate_v = np.array([[0.1, 0.1, 0.3], [0.1, 0.1, 0.3], [0.2, 0.1, 0.3], [0.0, 0.0, -0.2]] * 1)
+    verts = np.concatenate([v, folded, degenerate_v])
+    nv = len(v)
+    faces = np.concatenate([f, f[:, ::-1] + nv, [[2 * nv, 2 * nv + 1, 2 * nv + 2], [2 * nv + 3] * 3]])
+    pts = np.random.default_rng(3).uniform([-0.1, -0.1, -0.3], [0.3, 0.3, 0.4], (400, 3))
+    tris = verts[faces]
+    T = len(tris)
+    cp = trimesh.triangles.closest_point(np.tile(tris, (len(pts), 1, 1)), np.repeat(pts, T, axis=0))
+    brute = np.linalg.norm(cp - np.repeat(pts, T, axis=0), axis=1).reshape(-1, T).min(axis=1)
+    for patch_size in (32, 3):
+        np.testing.assert_allclose(closest_points_on_mesh(verts, faces, pts, patch_size=patch_size)[1], brute,
+                                   rtol=0, atol=1e-12)
