@@ -6,13 +6,16 @@ texture → antialias (RGB and the coverage channel together, which gives the si
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
 from saft.render.backend import get_rasterizer
+from saft.render import torch_backend as tb
 from saft.render.clip import camera_to_clip
+from saft.render.torch_backend import TorchRasterizer
 from saft.scene.camera import Camera
 
 
@@ -23,7 +26,8 @@ class RenderOutput:
     depth (B, H, W): metric camera z of the visible surface, 0 where empty (not antialiased).
     normals (B, H, W, 3): unit world-frame normals of the visible surface, interpolated from area-weighted
     vertex normals, oriented by the triangle winding (not flipped towards the camera); 0 where empty.
-    rast (B, H, W, 4): the raw rasterizer output (u, v, z/w, triangle_id + 1).
+    rast (B, H, W, 4): the raw rasterizer output (u, v, z/w, triangle_id + 1) (detached on the torch
+    backend, whose gradients flow through its own compact kernels).
     pos_clip (B, V, 4): the clip-space vertices used."""
 
     rgb: torch.Tensor
@@ -74,6 +78,8 @@ def render_cloth(vertices: torch.Tensor, triangles, uvs, texture: torch.Tensor, 
     H, W = camera.height, camera.width
 
     pos = camera_to_clip(vertices, camera, near=near, far=far)
+    if isinstance(R, TorchRasterizer):
+        return _render_cloth_torch(vertices, pos, tri, uv, tex[0], H, W, max_mip_level)
     rast, rast_db = R.rasterize(pos, tri, (H, W), with_db=True)
     uv_tex = torch.stack([uv[:, 0], 1.0 - uv[:, 1]], dim=-1)  # nvdiffrast texture: v → row from the top
     normals_v = vertex_normals(vertices, tri)
@@ -90,3 +96,40 @@ def render_cloth(vertices: torch.Tensor, triangles, uvs, texture: torch.Tensor, 
     n = n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     return RenderOutput(rgb=aa[..., :3], mask=aa[..., 3], depth=pix[..., 2], normals=n, rast=rast,
                         pos_clip=pos)
+
+
+def _render_cloth_torch(vertices, pos, tri, uv, tex, H, W, max_mip_level) -> RenderOutput:
+    """The same pipeline on the covered pixels only (structure-of-arrays kernels with hand-written
+    backwards, no dense intermediates); identical in value to the primitive pipeline (tested)."""
+    B, V, _ = vertices.shape
+    n_pix = B * H * W
+    pix, tid = tb.visibility(pos, tri, (H, W))
+    vid = tb.pixel_vertex_ids(pos, tri, pix, tid, H, W)  # (3, P) into B·V
+    bw, zw, db = tb.bary_weights(pos, tri, pix, tid, (H, W), with_db=True, vid=vid)
+    uv_tex = torch.stack([uv[:, 0], 1.0 - uv[:, 1]], dim=-1)
+    vid_local = tri[tid].T  # (3, P) into V: UVs are shared by all frames
+    uv_pix = tb.interp_compact(bw, uv_tex, vid_local)
+    with torch.no_grad():
+        a = uv_tex[vid_local]  # (3, P, 2)
+        d0, d1 = a[0] - a[2], a[1] - a[2]
+        uv_da = torch.stack([d0[:, 0] * db[0] + d1[:, 0] * db[2], d0[:, 0] * db[1] + d1[:, 0] * db[3],
+                             d0[:, 1] * db[0] + d1[:, 1] * db[2], d0[:, 1] * db[1] + d1[:, 1] * db[3]], dim=-1)
+    rgb_c = tb.texture_compact(tex, uv_pix, uv_da, boundary_mode="clamp", max_mip_level=max_mip_level)
+    normals_v = vertex_normals(vertices, tri)
+    geo = tb.interp_compact(bw, torch.cat([pos[..., 3:4], normals_v], dim=-1).reshape(B * V, 4), vid)
+    ones = torch.ones_like(rgb_c[:, :1])
+    color = tb._scatter_rows(torch.cat([rgb_c.to(pos.dtype), ones], dim=-1), pix, n_pix).reshape(B, H, W, 4)
+    with torch.no_grad():
+        tid_img = torch.full((n_pix,), -1, dtype=torch.long, device=pos.device)
+        tid_img[pix] = tid
+        depth_img = torch.full((n_pix,), math.inf, dtype=pos.dtype, device=pos.device)
+        depth_img[pix] = zw.detach()
+        rast = pos.new_zeros(n_pix, 4)
+        rast[pix] = torch.stack([bw[0].detach(), bw[1].detach(), zw.detach(), (tid + 1).to(pos.dtype)], dim=-1)
+    aa = tb.antialias_core(color, tid_img.reshape(B, H, W), depth_img.reshape(B, H, W), pos, tri)
+    depth = tb._scatter_rows(geo[:, :1], pix, n_pix).reshape(B, H, W)
+    n = geo[:, 1:]
+    n = n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    normals = tb._scatter_rows(n, pix, n_pix).reshape(B, H, W, 3)
+    return RenderOutput(rgb=aa[..., :3], mask=aa[..., 3], depth=depth, normals=normals,
+                        rast=rast.reshape(B, H, W, 4), pos_clip=pos)

@@ -147,85 +147,96 @@ def barycentrics(pos: torch.Tensor, tri: torch.Tensor, pix: torch.Tensor, tid: t
     """Perspective-correct (u, v, z/w) at the centres of pixels `pix` seen through triangles `tid`:
     (P, 3), differentiable with respect to `pos`. With with_db also (P, 4) = (du/dX, du/dY, dv/dX, dv/dY)
     in pixel units (no gradient)."""
-    H, W = int(resolution[0]), int(resolution[1])
-    B, V, _ = pos.shape
+    bw, zw, db = bary_weights(pos, tri, pix, tid, resolution, with_db=with_db)
+    out = torch.stack([bw[0], bw[1], zw], dim=-1)
+    return (out, db.T) if with_db else out
+
+
+def pixel_vertex_ids(pos: torch.Tensor, tri: torch.Tensor, pix: torch.Tensor, tid: torch.Tensor, H: int, W: int):
+    """(3, P) indices into pos.reshape(-1, 4) of the three vertices seen at each covered pixel."""
+    V = pos.shape[1]
     b = torch.div(pix, H * W, rounding_mode="floor")
+    return tri[tid].T + b * V
+
+
+def bary_weights(pos: torch.Tensor, tri: torch.Tensor, pix: torch.Tensor, tid: torch.Tensor,
+                 resolution: tuple[int, int], with_db: bool = False, vid: torch.Tensor | None = None):
+    """Structure-of-arrays barycentrics: bw (3, P) perspective-correct weights of the triangle's vertices,
+    zw (P,) = z/w, both differentiable w.r.t. pos (hand-written backward); db (4, P) = (db0/dX, db0/dY,
+    db1/dX, db1/dY) in pixel units without gradient, or None."""
+    H, W = int(resolution[0]), int(resolution[1])
     ndc_x, ndc_y = _pixel_ndc(pix, H, W, pos.dtype)
-    vid = tri[tid] + (b * V)[:, None]  # (P, 3)
-    P3 = pos.reshape(-1, 4)[vid]  # (P, 3, 4)
-    out, db = _BaryFn.apply(P3, ndc_x, ndc_y, with_db, H, W)
-    return (out, db) if with_db else out
+    if vid is None:
+        vid = pixel_vertex_ids(pos, tri, pix, tid, H, W)
+    bw, zw, db = _BaryFn.apply(pos.reshape(-1, 4), vid, ndc_x, ndc_y, with_db, H, W)
+    return bw, zw, db
 
 
-def _bary_forward(P3, ndc_x, ndc_y):
-    X = P3[..., 0] - ndc_x[:, None] * P3[..., 3]
-    Y = P3[..., 1] - ndc_y[:, None] * P3[..., 3]
-    X1, X2 = X.roll(-1, -1), X.roll(-2, -1)
-    Y1, Y2 = Y.roll(-1, -1), Y.roll(-2, -1)
-    c = X1 * Y2 - X2 * Y1  # ∝ barycentric weight of each vertex
-    return X, Y, c
+def _bary_terms(pf, vid, nx, ny):
+    g = pf.T.contiguous().index_select(1, vid.reshape(-1)).reshape(4, 3, -1)  # coordinate, vertex, pixel
+    x, y, z, w = g[0], g[1], g[2], g[3]
+    X = x - nx * w
+    Y = y - ny * w
+    c = torch.stack([X[1] * Y[2] - X[2] * Y[1], X[2] * Y[0] - X[0] * Y[2], X[0] * Y[1] - X[1] * Y[0]])
+    return z, w, X, Y, c
 
 
 class _BaryFn(torch.autograd.Function):
-    """(u, v, z/w) from the three clip-space vertices of each pixel's triangle, with a hand-written
-    backward (the autograd graph of the same expression is ~3× slower on CPU)."""
+    """Barycentrics from the clip-space vertices, structure-of-arrays with a hand-written backward (the
+    autograd graph of the same expression is several times slower on CPU)."""
 
     @staticmethod
-    def forward(ctx, P3, ndc_x, ndc_y, with_db, H, W):
-        X, Y, c = _bary_forward(P3, ndc_x, ndc_y)
-        s = c.sum(-1)
+    def forward(ctx, pf, vid, nx, ny, with_db, H, W):
+        z, w, X, Y, c = _bary_terms(pf, vid, nx, ny)
+        s = c[0] + c[1] + c[2]
         inv_s = 1.0 / torch.where(s == 0, torch.ones_like(s), s)
-        z, w = P3[..., 2], P3[..., 3]
-        cz = (c * z).sum(-1)
-        cw = (c * w).sum(-1)
+        bw = c * inv_s
+        cz = (c * z).sum(0)
+        cw = (c * w).sum(0)
         inv_cw = 1.0 / torch.where(cw == 0, torch.ones_like(cw), cw)
-        out = torch.stack([c[:, 0] * inv_s, c[:, 1] * inv_s, cz * inv_cw], dim=-1)
+        zw = cz * inv_cw
         db = None
         if with_db:
-            w1, w2 = w.roll(-1, -1), w.roll(-2, -1)
-            X1, X2 = X.roll(-1, -1), X.roll(-2, -1)
-            Y1, Y2 = Y.roll(-1, -1), Y.roll(-2, -1)
-            dcx = -(w1 * Y2 - w2 * Y1)
-            dcy = -(X1 * w2 - X2 * w1)
-            dsx, dsy = dcx.sum(-1), dcy.sum(-1)
-            b = c[:, :2] * inv_s[:, None]
-            dbx = (dcx[:, :2] - b * dsx[:, None]) * inv_s[:, None] * (2.0 / W)
-            dby = (dcy[:, :2] - b * dsy[:, None]) * inv_s[:, None] * (2.0 / H)
-            db = torch.stack([dbx[:, 0], dby[:, 0], dbx[:, 1], dby[:, 1]], dim=-1)
-        ctx.save_for_backward(P3, ndc_x, ndc_y)
-        ctx.mark_non_differentiable(*([db] if db is not None else []))
-        return out, db
+            dcx = torch.stack([-(w[1] * Y[2] - w[2] * Y[1]), -(w[2] * Y[0] - w[0] * Y[2])])
+            dcy = torch.stack([-(X[1] * w[2] - X[2] * w[1]), -(X[2] * w[0] - X[0] * w[2])])
+            dsx = -(w[1] * Y[2] - w[2] * Y[1]) - (w[2] * Y[0] - w[0] * Y[2]) - (w[0] * Y[1] - w[1] * Y[0])
+            dsy = -(X[1] * w[2] - X[2] * w[1]) - (X[2] * w[0] - X[0] * w[2]) - (X[0] * w[1] - X[1] * w[0])
+            dbx = (dcx - bw[:2] * dsx) * inv_s * (2.0 / W)
+            dby = (dcy - bw[:2] * dsy) * inv_s * (2.0 / H)
+            db = torch.stack([dbx[0], dby[0], dbx[1], dby[1]])
+            ctx.mark_non_differentiable(db)
+        ctx.save_for_backward(pf, vid, nx, ny)
+        return bw, zw, db
 
     @staticmethod
-    def backward(ctx, g_out, g_db):
-        P3, ndc_x, ndc_y = ctx.saved_tensors
-        X, Y, c = _bary_forward(P3, ndc_x, ndc_y)
-        s = c.sum(-1)
+    def backward(ctx, g_bw, g_zw, g_db):
+        pf, vid, nx, ny = ctx.saved_tensors
+        z, w, X, Y, c = _bary_terms(pf, vid, nx, ny)
+        s = c[0] + c[1] + c[2]
         inv_s = 1.0 / torch.where(s == 0, torch.ones_like(s), s)
-        z, w = P3[..., 2], P3[..., 3]
-        cz = (c * z).sum(-1)
-        cw = (c * w).sum(-1)
-        inv_cw = 1.0 / torch.where(cw == 0, torch.ones_like(cw), cw)
-        gu, gv, gz = g_out[:, 0], g_out[:, 1], g_out[:, 2]
-        # u = c0/s, v = c1/s, q = cz/cw
-        u, v, q = c[:, 0] * inv_s, c[:, 1] * inv_s, cz * inv_cw
-        gs = -(gu * u + gv * v) * inv_s
-        gc = gs[:, None].expand(-1, 3).clone()
-        gc[:, 0] += gu * inv_s
-        gc[:, 1] += gv * inv_s
-        gcz = gz * inv_cw
-        gcw = -gz * q * inv_cw
-        gc = gc + gcz[:, None] * z + gcw[:, None] * w
-        g_zv = gcz[:, None] * c  # direct dependence on z_i
-        g_wv = gcw[:, None] * c
-        # c_k = X_{k+1} Y_{k+2} − X_{k+2} Y_{k+1}
-        X1, X2 = X.roll(-1, -1), X.roll(-2, -1)
-        Y1, Y2 = Y.roll(-1, -1), Y.roll(-2, -1)
-        # dc_k/dX_{k+1} = Y_{k+2}; dc_k/dX_{k+2} = −Y_{k+1}
-        gX = (gc * Y2).roll(1, -1) - (gc * Y1).roll(2, -1)
-        gY = -(gc * X2).roll(1, -1) + (gc * X1).roll(2, -1)
-        gP = torch.stack([gX, gY, g_zv, g_wv - gX * ndc_x[:, None] - gY * ndc_y[:, None]], dim=-1)
-        return gP, None, None, None, None, None
+        bw = c * inv_s
+        if g_bw is None:
+            g_bw = torch.zeros_like(c)
+        gc = (g_bw - (g_bw * bw).sum(0)) * inv_s
+        gx = torch.zeros_like(c)
+        if g_zw is not None:
+            cw = (c * w).sum(0)
+            inv_cw = 1.0 / torch.where(cw == 0, torch.ones_like(cw), cw)
+            q = (c * z).sum(0) * inv_cw
+            gcz = g_zw * inv_cw
+            gcw = -gcz * q
+            gc = gc + gcz * z + gcw * w
+            g_z = gcz * c
+            g_w = gcw * c
+        else:
+            g_z = torch.zeros_like(c)
+            g_w = torch.zeros_like(c)
+        gX = torch.stack([gc[2] * Y[1] - gc[1] * Y[2], gc[0] * Y[2] - gc[2] * Y[0], gc[1] * Y[0] - gc[0] * Y[1]])
+        gY = torch.stack([gc[1] * X[2] - gc[2] * X[1], gc[2] * X[0] - gc[0] * X[2], gc[0] * X[1] - gc[1] * X[0]])
+        g_w = g_w - gX * nx - gY * ny
+        gP = torch.stack([gX, gY, g_z, g_w], dim=-1)  # (3, P, 4)
+        gpf = torch.zeros_like(pf).index_add_(0, vid.reshape(-1), gP.reshape(-1, 4))
+        return gpf, None, None, None, None, None, None
 
 
 def rasterize(pos: torch.Tensor, tri: torch.Tensor, resolution, with_db: bool = False):
@@ -403,50 +414,19 @@ def texture(tex: torch.Tensor, uv: torch.Tensor, uv_da: torch.Tensor | None = No
                 for i in range(B)]
         return torch.cat(outs, dim=0)
     uvf = uv.reshape(-1, 2)
+    daf = None if uv_da is None or filter_mode != "linear-mipmap-linear" else uv_da.reshape(-1, 4)
     sel_all = None
     if mask is not None:
         sel_all = torch.nonzero(mask.reshape(-1)).squeeze(1)
-        uvf = uvf[sel_all]
-    t0 = tex.permute(0, 3, 1, 2)
+        uvf = uvf.index_select(0, sel_all)
+        daf = None if daf is None else daf.index_select(0, sel_all)
     if filter_mode == "nearest":
-        Ht, Wt = t0.shape[-2:]
+        Ht, Wt = tex.shape[1:3]
         col = (uvf[:, 0] * Wt).floor().long().clamp(0, Wt - 1)
         row = (uvf[:, 1] * Ht).floor().long().clamp(0, Ht - 1)
         vals = tex[0][row, col]
-    elif filter_mode == "linear":
-        vals = _sample(t0, uvf, boundary_mode)
     else:
-        Ht, Wt = t0.shape[-2:]
-        with torch.no_grad():
-            da = uv_da.reshape(-1, 4)
-            if sel_all is not None:
-                da = da[sel_all]
-            lx2 = (da[:, 0] * Wt) ** 2 + (da[:, 2] * Ht) ** 2
-            ly2 = (da[:, 1] * Wt) ** 2 + (da[:, 3] * Ht) ** 2
-            lod = 0.5 * torch.log2(torch.maximum(lx2, ly2).clamp_min(1e-30))
-        levels = mip_pyramid(t0, max_mip_level)
-        lod = lod.clamp(0.0, len(levels) - 1)
-        lo = lod.floor()
-        frac = lod - lo
-        lo = lo.long()
-        vals = None
-        lmin, lmax = int(lo.min()) if lo.numel() else 0, int(lo.max()) if lo.numel() else 0
-        for level in range(lmin, min(lmax + 1, len(levels) - 1) + 1):
-            with torch.no_grad():
-                wgt = torch.where(lo == level, 1.0 - frac, torch.where(lo == level - 1, frac, 0.0))
-                sel = torch.nonzero(wgt > 0).squeeze(1)
-            if sel.numel() == 0:
-                continue
-            if sel.numel() == wgt.numel():
-                contrib = _sample(levels[level], uvf, boundary_mode) * wgt[:, None].to(tex.dtype)
-                vals = contrib if vals is None else vals + contrib
-            else:
-                contrib = _sample(levels[level], uvf[sel], boundary_mode) * wgt[sel, None].to(tex.dtype)
-                if vals is None:
-                    vals = uvf.new_zeros(uvf.shape[0], C).to(tex.dtype)
-                vals = vals.index_add(0, sel, contrib)
-        if vals is None:
-            vals = uvf.new_zeros(uvf.shape[0], C).to(tex.dtype)
+        vals = texture_compact(tex[0], uvf, daf, boundary_mode, max_mip_level)
     if sel_all is not None:
         return _scatter_rows(vals, sel_all, B * H * W).reshape(B, H, W, C)
     return vals.reshape(B, H, W, C)
@@ -475,64 +455,67 @@ def silhouette_edges(pos: torch.Tensor, tri: torch.Tensor, H: int, W: int) -> to
 def antialias(color: torch.Tensor, rast: torch.Tensor, pos: torch.Tensor, tri: torch.Tensor) -> torch.Tensor:
     """nvdiffrast-style analytic antialiasing of color (B, H, W, C); differentiable w.r.t. color and, through
     the blend weights, pos (silhouette gradients on boundary and fold edges)."""
+    with torch.no_grad():
+        tidf = rast.detach()[..., 3]
+        tid_img = tidf.long() - 1
+        depth_img = torch.where(tidf > 0, rast.detach()[..., 2], torch.full_like(tidf, math.inf))
+    return _antialias_impl(color, tid_img, depth_img, pos, tri)
+
+
+def _antialias_impl(color, tid_img, depth_img, pos, tri):
     pos, tri = _check_pos_tri(pos, tri)
     B, H, W, C = color.shape
     V = pos.shape[1]
+    T = tri.shape[0]
     with torch.no_grad():
         sil = silhouette_edges(pos, tri, H, W)  # (B, T, 3)
+        tri_sil = sil.any(-1).reshape(-1)  # (B·T,)
         x, y = _screen_xy(pos.detach(), H, W)  # (B, V)
-        tidf = rast.detach()[..., 3]
-        depth = torch.where(tidf > 0, rast.detach()[..., 2], torch.full_like(tidf, math.inf))
-        tid = tidf.long() - 1
+        xf, yf = x.reshape(-1), y.reshape(-1)
+        tflat = tid_img.reshape(-1)
+        dflat = depth_img.reshape(-1)
         pairs = []
         for axis in (0, 1):  # 0: horizontal neighbours (j, j+1), 1: vertical (i, i+1)
             if axis == 0:
-                diff = tid[:, :, :-1] != tid[:, :, 1:]
+                if W < 2:
+                    continue
+                diff = tid_img[:, :, :-1] != tid_img[:, :, 1:]
                 a_idx = torch.nonzero(diff.reshape(-1)).squeeze(1)
-                bb = torch.div(a_idx, H * (W - 1), rounding_mode="floor")
-                rem = a_idx - bb * H * (W - 1)
-                ii = torch.div(rem, W - 1, rounding_mode="floor")
-                jj = rem - ii * (W - 1)
-                pa = (bb * H + ii) * W + jj
+                pa = a_idx + torch.div(a_idx, W - 1, rounding_mode="floor")  # (b·H + i)·W + j
                 pb = pa + 1
             else:
-                diff = tid[:, :-1, :] != tid[:, 1:, :]
+                if H < 2:
+                    continue
+                diff = tid_img[:, :-1, :] != tid_img[:, 1:, :]
                 a_idx = torch.nonzero(diff.reshape(-1)).squeeze(1)
-                bb = torch.div(a_idx, (H - 1) * W, rounding_mode="floor")
-                rem = a_idx - bb * (H - 1) * W
-                ii = torch.div(rem, W, rounding_mode="floor")
-                jj = rem - ii * W
-                pa = (bb * H + ii) * W + jj
+                pa = a_idx + torch.div(a_idx, (H - 1) * W, rounding_mode="floor") * W
                 pb = pa + W
-            dflat = depth.reshape(-1)
             a_front = dflat[pa] <= dflat[pb]
             pf = torch.where(a_front, pa, pb)  # the nearer pixel
             po = torch.where(a_front, pb, pa)
-            t_f = tid.reshape(-1)[pf]
+            t_f = tflat[pf]
             bf = torch.div(pf, H * W, rounding_mode="floor")
+            keep = torch.nonzero(tri_sil[bf * T + t_f]).squeeze(1)  # only triangles with a silhouette edge
+            pf, po, t_f, bf = pf[keep], po[keep], t_f[keep], bf[keep]
             v0 = tri[t_f]  # (N, 3)
             v1 = v0.roll(-1, -1)
             gv0 = v0 + (bf * V)[:, None]
             gv1 = v1 + (bf * V)[:, None]
-            xf, yf = x.reshape(-1), y.reshape(-1)
             x0, y0, x1, y1 = xf[gv0], yf[gv0], xf[gv1], yf[gv1]  # (N, 3) edge end points
             rem_f = pf - bf * H * W
             fi = torch.div(rem_f, W, rounding_mode="floor").to(x.dtype)
             fj = (rem_f % W).to(x.dtype)
             dx, dy = x1 - x0, y1 - y0
-            if axis == 0:  # crossing of row fi, major axis vertical
+            sgn = torch.where(po > pf, 1.0, -1.0).to(x.dtype)
+            if axis == 0:  # crossing of row fi, edges more vertical than horizontal
                 major = (dy.abs() >= dx.abs()) & (dy != 0)
                 tpar = (fi[:, None] - y0) / torch.where(dy == 0, torch.ones_like(dy), dy)
-                cross = x0 + tpar * dx
-                sgn = torch.where(po > pf, 1.0, -1.0).to(x.dtype)
-                tt = (cross - fj[:, None]) * sgn[:, None]
-            else:
+                tt = (x0 + tpar * dx - fj[:, None]) * sgn[:, None]
+            else:  # crossing of column fj, edges more horizontal than vertical
                 major = dx.abs() > dy.abs()
                 tpar = (fj[:, None] - x0) / torch.where(dx == 0, torch.ones_like(dx), dx)
-                cross = y0 + tpar * dy
-                sgn = torch.where(po > pf, 1.0, -1.0).to(x.dtype)
-                tt = (cross - fi[:, None]) * sgn[:, None]
-            ok = sil[bf[:, None], t_f[:, None], torch.arange(3, device=x.device)[None]] & major
+                tt = (y0 + tpar * dy - fi[:, None]) * sgn[:, None]
+            ok = sil.reshape(-1, 3)[bf * T + t_f] & major
             ok &= (tpar >= 0) & (tpar <= 1) & (tt >= 0) & (tt <= 1)
             has = ok.any(-1)
             k = torch.argmax(ok.to(torch.uint8), dim=-1)
@@ -540,20 +523,18 @@ def antialias(color: torch.Tensor, rast: torch.Tensor, pos: torch.Tensor, tri: t
             if sel.numel():
                 ks = k[sel]
                 pairs.append((axis, pf[sel], po[sel], gv0[sel, ks], gv1[sel, ks], fi[sel], fj[sel], sgn[sel]))
-    out = color.reshape(-1, C)
     if not pairs:
         return color
+    out = color.reshape(-1, C)
     posf = pos.reshape(-1, 4)
     targets, deltas = [], []
     for axis, pf, po, e0, e1, fi, fj, sgn in pairs:
         xe0, ye0 = _screen_xy(posf[e0], H, W)
         xe1, ye1 = _screen_xy(posf[e1], H, W)
         if axis == 0:
-            cross = xe0 + (fi - ye0) / (ye1 - ye0) * (xe1 - xe0)
-            tt = (cross - fj) * sgn
+            tt = (xe0 + (fi - ye0) / (ye1 - ye0) * (xe1 - xe0) - fj) * sgn
         else:
-            cross = ye0 + (fj - xe0) / (xe1 - xe0) * (ye1 - ye0)
-            tt = (cross - fi) * sgn
+            tt = (ye0 + (fj - xe0) / (xe1 - xe0) * (ye1 - ye0) - fi) * sgn
         f = tt - 0.5  # > 0: the front triangle reaches into the other pixel; < 0: it leaves part of its own
         cf, co = out[pf], out[po]
         targets.append(torch.where(f.detach() > 0, po, pf))
@@ -576,3 +557,127 @@ class TorchRasterizer:
 
     def __repr__(self) -> str:
         return f"TorchRasterizer(device={self.device})"
+
+
+# ------------------------------------------------------------------------------------------ compact kernels
+# Used by render_cloth's torch path: everything on the covered pixels only, hand-written backwards.
+class _InterpFn(torch.autograd.Function):
+    """out (P, C) = Σ_k bw[k] · A[idx[k]] with A (N, C) vertex attributes, idx (3, P)."""
+
+    @staticmethod
+    def forward(ctx, bw, A, idx):
+        a = A.index_select(0, idx.reshape(-1)).reshape(3, -1, A.shape[1])
+        out = bw[0, :, None] * a[0] + bw[1, :, None] * a[1] + bw[2, :, None] * a[2]
+        ctx.save_for_backward(bw, A, idx)
+        return out
+
+    @staticmethod
+    def backward(ctx, g):
+        bw, A, idx = ctx.saved_tensors
+        g_bw = g_A = None
+        if ctx.needs_input_grad[0]:
+            a = A.index_select(0, idx.reshape(-1)).reshape(3, -1, A.shape[1])
+            g_bw = (a * g).sum(-1)
+        if ctx.needs_input_grad[1]:
+            g_A = torch.zeros_like(A).index_add_(0, idx.reshape(-1), (bw[..., None] * g).reshape(-1, A.shape[1]))
+        return g_bw, g_A, None
+
+
+def interp_compact(bw: torch.Tensor, attr: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
+    """Interpolate per-vertex attributes attr (N, C) at the covered pixels: (P, C)."""
+    return _InterpFn.apply(bw, attr, idx)
+
+
+class _PyramidFn(torch.autograd.Function):
+    """Box-filtered mip levels 1..n−1 of an NCHW texture (odd sizes drop the last row/column); the
+    backward spreads each level's gradient back to level 0 with the adjoint of 2×2 averaging (an expand),
+    much cheaper than autograd through avg_pool2d."""
+
+    @staticmethod
+    def forward(ctx, t0, n_levels):
+        levels = [t0]
+        for _ in range(n_levels - 1):
+            t = levels[-1]
+            N, C, h, w = t.shape
+            h2, w2 = max(1, h // 2), max(1, w // 2)
+            fy, fx = (2 if h >= 2 else 1), (2 if w >= 2 else 1)
+            t = t[..., :h2 * fy, :w2 * fx].reshape(N, C, h2, fy, w2, fx).mean(dim=(3, 5))
+            levels.append(t)
+        ctx.shapes = [t.shape for t in levels]
+        return tuple(levels[1:])
+
+    @staticmethod
+    def backward(ctx, *grads):
+        shapes = ctx.shapes
+        acc = None
+        for lvl in range(len(shapes) - 1, 0, -1):
+            g = grads[lvl - 1]
+            if g is not None:
+                acc = g if acc is None else acc + g
+            if acc is None:
+                continue
+            N, C, h, w = shapes[lvl - 1]
+            _, _, h2, w2 = acc.shape
+            fy, fx = (2 if h >= 2 else 1), (2 if w >= 2 else 1)
+            up = acc[:, :, :, None, :, None].expand(N, C, h2, fy, w2, fx).reshape(N, C, h2 * fy, w2 * fx)
+            up = up * (1.0 / (fy * fx))
+            if (h2 * fy, w2 * fx) != (h, w):
+                up = F.pad(up, (0, w - w2 * fx, 0, h - h2 * fy))
+            acc = up
+        return acc, None
+
+
+def _mip_count(h: int, w: int) -> int:
+    n = 1
+    while h > 1 or w > 1:
+        h, w = max(1, h // 2), max(1, w // 2)
+        n += 1
+    return n
+
+
+def texture_compact(tex: torch.Tensor, uv: torch.Tensor, uv_da: torch.Tensor | None = None,
+                    boundary_mode: str = "clamp", max_mip_level: int | None = None) -> torch.Tensor:
+    """Texture lookup for P pixels: tex (Ht, Wt, C), uv (P, 2) (nvdiffrast convention), uv_da (P, 4) or
+    None (bilinear) → (P, C); trilinear over the box-filtered pyramid, one grid_sample per mip level on
+    the pixels that use it. Differentiable w.r.t. tex and uv."""
+    Ht, Wt, C = tex.shape
+    P = uv.shape[0]
+    t0 = tex.permute(2, 0, 1)[None].contiguous()
+    if uv_da is None or P == 0:
+        return _sample(t0, uv, boundary_mode)
+    with torch.no_grad():
+        lx2 = (uv_da[:, 0] * Wt) ** 2 + (uv_da[:, 2] * Ht) ** 2
+        ly2 = (uv_da[:, 1] * Wt) ** 2 + (uv_da[:, 3] * Ht) ** 2
+        lod = 0.5 * torch.log2(torch.maximum(lx2, ly2).clamp_min(1e-30))
+        max_levels = _mip_count(Ht, Wt)
+        if max_mip_level is not None:
+            max_levels = min(max_levels, int(max_mip_level) + 1)
+        lod = lod.clamp(0.0, max_levels - 1)
+        lo_f = lod.floor()
+        frac = (lod - lo_f).to(uv.dtype)
+        lo = lo_f.long()
+        lmin, lmax = int(lo.min()), int(lo.max())
+        n_levels = min(max_levels, lmax + 2)
+    levels = [t0] + (list(_PyramidFn.apply(t0, n_levels)) if n_levels > 1 else [])
+    out = None
+    for level in range(lmin, n_levels):
+        with torch.no_grad():
+            wgt = torch.where(lo == level, 1.0 - frac, torch.where(lo == level - 1, frac, torch.zeros_like(frac)))
+            sel = torch.nonzero(wgt > 0).squeeze(1)
+        if sel.numel() == 0:
+            continue
+        if sel.numel() == P:
+            contrib = _sample(levels[level], uv, boundary_mode) * wgt[:, None]
+            out = contrib if out is None else out + contrib
+        else:
+            contrib = _sample(levels[level], uv[sel], boundary_mode) * wgt[sel, None]
+            if out is None:
+                out = uv.new_zeros(P, C, dtype=tex.dtype)
+            out = out.index_add(0, sel, contrib)
+    return out if out is not None else uv.new_zeros(P, C, dtype=tex.dtype)
+
+
+def antialias_core(color: torch.Tensor, tid_img: torch.Tensor, depth_img: torch.Tensor, pos: torch.Tensor,
+                   tri: torch.Tensor) -> torch.Tensor:
+    """antialias() on a triangle-id image (B, H, W) long (−1 empty) and a depth image (inf empty)."""
+    return _antialias_impl(color, tid_img, depth_img, pos, tri)

@@ -1,0 +1,132 @@
+"""Gradients: image and mask losses w.r.t. vertex positions against finite differences of a supersampled
+render, on a mesh-boundary silhouette and on a fold silhouette; texture gradients exact; barycentric
+backward against autograd."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from saft.render import render_cloth
+from saft.render import torch_backend as tb
+
+sys.path.insert(0, str(Path(__file__).parent))
+from _render_helpers import box_down, folded_sheet, grid, pinhole, smooth_texture  # noqa: E402
+
+SS = 12  # supersampling factor of the reference
+
+
+def _weights(shape, seed):
+    g = torch.Generator().manual_seed(seed)
+    w = torch.rand(shape, generator=g, dtype=torch.float64)
+    # smooth it a little so the reference is not dominated by single-pixel noise
+    w = torch.nn.functional.avg_pool2d(w.permute(0, 3, 1, 2), 3, 1, 1, count_include_pad=False)
+    return w.permute(0, 2, 3, 1)
+
+
+def _fd_check(verts, tris, uvs, cam, moving, which, seed=0, h=2e-3):
+    tex = smooth_texture()
+    W_rgb = _weights((1, cam.height, cam.width, 3), seed)
+    W_mask = W_rgb[..., 0]
+
+    def loss_of(out, ss=1):
+        rgb, mask = out.rgb, out.mask
+        if ss > 1:
+            rgb = box_down(rgb, ss)
+            mask = box_down(mask[..., None], ss)[..., 0]
+        return (W_rgb * rgb).sum() if which == "image" else (W_mask * mask).sum()
+
+    v = torch.tensor(verts, requires_grad=True)
+    loss_of(render_cloth(v, tris, uvs, tex, cam)).backward()
+    grad = v.grad[moving].clone()
+
+    big = cam.scaled(SS)
+    fd = torch.zeros_like(grad)
+    for a, vi in enumerate(moving):
+        for c in range(2):  # image-plane directions (the scenes face the camera)
+            vp, vm = verts.copy(), verts.copy()
+            vp[vi, c] += h
+            vm[vi, c] -= h
+            lp = loss_of(render_cloth(torch.tensor(vp), tris, uvs, tex, big), SS)
+            lm = loss_of(render_cloth(torch.tensor(vm), tris, uvs, tex, big), SS)
+            fd[a, c] = (lp - lm) / (2 * h)
+    g, f = grad[:, :2].reshape(-1), fd[:, :2].reshape(-1)
+    cos = torch.dot(g, f) / (g.norm() * f.norm())
+    rel = (g - f).norm() / f.norm()
+    return g, f, float(cos), float(rel)
+
+
+def test_mask_and_image_gradients_on_a_boundary_silhouette():
+    cam = pinhole(32, 28, 40.0)
+    verts, tris, uvs = grid(3, -0.21, 0.19, -0.17, 0.16, 1.0)
+    moving = [2, 5, 8]  # the right column: boundary edge
+    for which in ("mask", "image"):
+        g, f, cos, rel = _fd_check(verts, tris, uvs, cam, moving, which)
+        assert f.norm() > 1.0, "the finite difference must see the silhouette move"
+        assert cos > 0.97 and rel < 0.25, (which, g, f)
+
+
+def test_mask_and_image_gradients_on_a_fold_silhouette():
+    verts, tris, uvs, fold = folded_sheet()
+    cam = pinhole(32, 28, 40.0)
+    sil = tb.silhouette_edges(_clip(verts, cam), torch.tensor(tris), cam.height, cam.width)
+    # the fold column is an interior edge of the mesh, yet a silhouette
+    assert sil.any(-1)[0].sum() > 0
+    for which in ("mask", "image"):
+        g, f, cos, rel = _fd_check(verts, tris, uvs, cam, fold, which, seed=1)
+        assert f.norm() > 1.0
+        assert cos > 0.95 and rel < 0.3, (which, g, f)
+        # without fold silhouettes there would be no gradient to the fold vertices at all
+        assert g.norm() > 0.5 * f.norm()
+
+
+def _clip(verts, cam):
+    from saft.render import camera_to_clip
+    return camera_to_clip(torch.tensor(verts)[None], cam)
+
+
+def test_texture_gradient_is_exact():
+    """The rendered colour is linear in the texture: the gradient equals the finite difference exactly."""
+    cam = pinhole(20, 18, 25.0)
+    verts, tris, uvs = grid(3, -0.3, 0.28, -0.25, 0.3, 1.0)
+    verts[:, 2] += 0.2 * verts[:, 0]
+    tex = smooth_texture(32).requires_grad_(True)
+    W = _weights((1, 18, 20, 3), 3)
+    loss = (W * render_cloth(torch.tensor(verts), tris, uvs, tex, cam).rgb).sum()
+    loss.backward()
+    rng = np.random.default_rng(0)
+    for _ in range(12):
+        i, j, c = rng.integers(0, 32), rng.integers(0, 32), rng.integers(0, 3)
+        t2 = tex.detach().clone()
+        t2[i, j, c] += 1.0
+        l2 = (W * render_cloth(torch.tensor(verts), tris, uvs, t2, cam).rgb).sum()
+        assert float(l2 - loss.detach()) == pytest.approx(float(tex.grad[i, j, c]), abs=1e-10)
+    assert tex.grad.abs().sum() > 0
+    # a texel's gradient through the mip pyramid: total weight is the rendered coverage
+    total = (W * render_cloth(torch.tensor(verts), tris, uvs, torch.ones_like(tex), cam).rgb).sum()
+    assert float(tex.grad.sum()) == pytest.approx(float(total), rel=1e-10)
+
+
+def test_barycentric_and_texture_backward_match_autograd():
+    torch.manual_seed(0)
+    pos = torch.rand(2, 10, 4, dtype=torch.float64)
+    pos[..., 3] += 1.0
+    pos[..., :2] = pos[..., :2] * 2 - 1
+    pos.requires_grad_(True)
+    tri = torch.tensor([[0, 1, 2], [3, 4, 5], [6, 7, 8], [1, 2, 9]])
+    pix = torch.tensor([3, 50, 77, 130, 199])
+    tid = torch.tensor([0, 1, 2, 3, 1])
+    assert torch.autograd.gradcheck(lambda p: tb.bary_weights(p, tri, pix, tid, (10, 10))[:2], (pos,))
+    tex = torch.rand(8, 6, 2, dtype=torch.float64, requires_grad=True)
+    uv = torch.rand(7, 2, dtype=torch.float64, requires_grad=True)
+    da = torch.rand(7, 4, dtype=torch.float64) * 0.5
+    for mode in ("clamp", "wrap"):
+        assert torch.autograd.gradcheck(lambda t, u: tb.texture_compact(t, u, da, mode), (tex, uv))
+    A = torch.rand(10, 3, dtype=torch.float64, requires_grad=True)
+    bw = torch.rand(3, 5, dtype=torch.float64, requires_grad=True)
+    idx = torch.randint(0, 10, (3, 5))
+    assert torch.autograd.gradcheck(lambda b, a: tb.interp_compact(b, a, idx), (bw, A))
