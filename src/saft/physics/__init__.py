@@ -20,7 +20,7 @@ Public API
     substeps from frame k to k + 1.
 
 ``rollout(topology, x0, v0=None, params=None, *, num_frames, substeps=4, frame_dt=0.02, pinned=None,
-          pinned_positions=None, hessian="projected", solver="auto", tol=1e-10, stats=None)``
+          pinned_positions=None, hessian="projected", solver="auto", tol=1e-6, stats=None)``
     -> positions (num_frames, V, 3), positions[0] = x0. Linearised backward Euler
     (M + h^2 K) v1 = M d v + h (f + M a_ext), x1 = x + h v1. Gradients (one custom adjoint backward, no
     unrolled solver) reach x0, v0, log10 Y/B/S, damping, a_const, a_vert. Pinned vertices stay exactly at

@@ -319,7 +319,7 @@ def rollout(
     pinned_positions=None,
     hessian: str = "projected",
     solver: str = "auto",
-    tol: float = 1e-10,
+    tol: float = 1e-6,
     stats: dict | None = None,
 ) -> torch.Tensor:
     """Simulate ``num_frames`` video frames from (x0, v0); returns positions (num_frames, V, 3) with
