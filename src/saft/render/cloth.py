@@ -107,16 +107,16 @@ def _render_cloth_torch(vertices, pos, tri, uv, tex, H, W, max_mip_level) -> Ren
     vid = tb.pixel_vertex_ids(pos, tri, pix, tid, H, W)  # (3, P) into B·V
     bw, zw, db = tb.bary_weights(pos, tri, pix, tid, (H, W), with_db=True, vid=vid)
     uv_tex = torch.stack([uv[:, 0], 1.0 - uv[:, 1]], dim=-1)
-    vid_local = tri[tid].T  # (3, P) into V: UVs are shared by all frames
-    uv_pix = tb.interp_compact(bw, uv_tex, vid_local)
+    normals_v = vertex_normals(vertices, tri)
+    attr = torch.cat([uv_tex[None].expand(B, V, 2), pos[..., 3:4], normals_v], dim=-1).reshape(B * V, 6)
+    vals = tb.interp_compact(bw, attr, vid)  # one gather for UV, camera depth and normals
+    uv_pix, geo = vals[:, :2], vals[:, 2:]
     with torch.no_grad():
-        a = uv_tex[vid_local]  # (3, P, 2)
+        a = uv_tex.index_select(0, tri[tid].T.reshape(-1)).reshape(3, -1, 2)
         d0, d1 = a[0] - a[2], a[1] - a[2]
         uv_da = torch.stack([d0[:, 0] * db[0] + d1[:, 0] * db[2], d0[:, 0] * db[1] + d1[:, 0] * db[3],
                              d0[:, 1] * db[0] + d1[:, 1] * db[2], d0[:, 1] * db[1] + d1[:, 1] * db[3]], dim=-1)
     rgb_c = tb.texture_compact(tex, uv_pix, uv_da, boundary_mode="clamp", max_mip_level=max_mip_level)
-    normals_v = vertex_normals(vertices, tri)
-    geo = tb.interp_compact(bw, torch.cat([pos[..., 3:4], normals_v], dim=-1).reshape(B * V, 4), vid)
     ones = torch.ones_like(rgb_c[:, :1])
     color = tb._scatter_rows(torch.cat([rgb_c.to(pos.dtype), ones], dim=-1), pix, n_pix).reshape(B, H, W, 4)
     with torch.no_grad():

@@ -205,13 +205,13 @@ class _BaryFn(torch.autograd.Function):
             dby = (dcy - bw[:2] * dsy) * inv_s * (2.0 / H)
             db = torch.stack([dbx[0], dby[0], dbx[1], dby[1]])
             ctx.mark_non_differentiable(db)
-        ctx.save_for_backward(pf, vid, nx, ny)
+        ctx.save_for_backward(vid, nx, ny, z, w, X, Y, c)
+        ctx.n = pf.shape[0]
         return bw, zw, db
 
     @staticmethod
     def backward(ctx, g_bw, g_zw, g_db):
-        pf, vid, nx, ny = ctx.saved_tensors
-        z, w, X, Y, c = _bary_terms(pf, vid, nx, ny)
+        vid, nx, ny, z, w, X, Y, c = ctx.saved_tensors
         s = c[0] + c[1] + c[2]
         inv_s = 1.0 / torch.where(s == 0, torch.ones_like(s), s)
         bw = c * inv_s
@@ -235,7 +235,7 @@ class _BaryFn(torch.autograd.Function):
         gY = torch.stack([gc[1] * X[2] - gc[2] * X[1], gc[2] * X[0] - gc[0] * X[2], gc[0] * X[1] - gc[1] * X[0]])
         g_w = g_w - gX * nx - gY * ny
         gP = torch.stack([gX, gY, g_z, g_w], dim=-1)  # (3, P, 4)
-        gpf = torch.zeros_like(pf).index_add_(0, vid.reshape(-1), gP.reshape(-1, 4))
+        gpf = gP.new_zeros(ctx.n, 4).index_add_(0, vid.reshape(-1), gP.reshape(-1, 4))
         return gpf, None, None, None, None, None, None
 
 
