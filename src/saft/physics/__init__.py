@@ -37,7 +37,7 @@ few iterations; other devices - Jacobi-preconditioned CG in torch with a dense f
 """
 
 from saft.physics.energy import ElementEval, deformation_energy
-from saft.physics.rollout import GRAVITY, LOG10_LIMITS, PhysicsParams, rollout
+from saft.physics.simulation import GRAVITY, LOG10_LIMITS, PhysicsParams, rollout
 from saft.physics.topology import ClothTopology
 
 __all__ = [

@@ -13,10 +13,18 @@ path); on breakdown or non-convergence it falls back to a dense solve (correct f
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 import torch
+
+
+def _csr(crow, col, data, n):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # "sparse CSR is beta" / invariant-check notices
+        return torch.sparse_csr_tensor(crow, col, data, size=(n, n), check_invariants=False)
 
 
 class SolveStats:
@@ -129,7 +137,7 @@ class JacobiCGSolver:
         self.stats = stats if stats is not None else SolveStats()
 
     def matrix(self, data: torch.Tensor):
-        return torch.sparse_csr_tensor(self.crow, self.col, data, size=(self.n, self.n))
+        return _csr(self.crow, self.col, data, self.n)
 
     def solve(self, data: torch.Tensor, b: torch.Tensor, x0: torch.Tensor | None = None) -> torch.Tensor:
         self.stats.solves += 1

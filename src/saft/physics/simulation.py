@@ -23,7 +23,7 @@ import torch
 
 from saft.errors import SimulationError
 from saft.physics.energy import LN10, ElementEval
-from saft.physics.solver import JacobiCGSolver, ReusedLUSolver, SolveStats
+from saft.physics.solver import JacobiCGSolver, ReusedLUSolver, SolveStats, _csr
 from saft.physics.topology import ClothTopology
 
 GRAVITY = (0.0, -9.81, 0.0)
@@ -41,7 +41,8 @@ class PhysicsParams:
     log10_Y, log10_B, log10_S: 0-dim, log10 of the stretch / bend / shear stiffness (SI units).
     damping: 0-dim velocity scale d applied before every substep.
     a_const: (3,) constant acceleration (gravity + mean wind), m/s^2.
-    a_vert: (N - 1, V, 3) per-vertex per-frame accelerations, or None (zero).
+    a_vert: (N - 1, V, 3) per-vertex per-frame accelerations, or None (zero); a rollout of fewer frames
+            uses the first ones.
     """
 
     log10_Y: torch.Tensor
@@ -166,7 +167,7 @@ class _Sim:
             return torch.from_numpy(M @ vec.numpy())
         crow = torch.as_tensor(t.csr_indptr, device=t.device)
         col = torch.as_tensor(t.csr_indices, device=t.device)
-        return torch.sparse_csr_tensor(crow, col, data, size=(3 * self.V, 3 * self.V)) @ vec
+        return _csr(crow, col, data, 3 * self.V) @ vec
 
     def lin_solve(self, solver, data, b, guess):
         if self.use_numpy:
@@ -345,10 +346,12 @@ def rollout(
     a_vert = params.a_vert
     if a_vert is not None:
         a_vert = a_vert.to(device=dev, dtype=dt)
-        if a_vert.shape != (num_frames - 1, t.num_vertices, 3):
+        if a_vert.dim() != 3 or a_vert.shape[0] < num_frames - 1 or a_vert.shape[1:] != (t.num_vertices, 3):
             raise ValueError(
-                f"a_vert must have shape ({num_frames - 1}, {t.num_vertices}, 3), got {tuple(a_vert.shape)}"
+                f"a_vert must have shape (>= {num_frames - 1}, {t.num_vertices}, 3), got {tuple(a_vert.shape)}"
             )
+        # longer is fine (frames added progressively): the unused frames get zero gradient
+        a_vert = a_vert[: num_frames - 1]
     sim = _Sim(t, num_frames, substeps, frame_dt, pinned, pinned_positions, hessian, solver, tol)
     f = dict(device=dev, dtype=dt)
 
