@@ -87,7 +87,7 @@ class ElementEval:
         self.xT = xT
         # --- springs
         e = xT[:, t.edges[:, 1]] - xT[:, t.edges[:, 0]]
-        ls = torch.linalg.vector_norm(e, dim=0).clamp_min(_EPS_LEN)
+        ls = torch.sqrt(_dot(e, e)).clamp_min(_EPS_LEN)
         u = e / ls
         s = 1.0 - t.rest_len / ls
         if mode == "projected":
@@ -103,8 +103,8 @@ class ElementEval:
         xn1, xv, xn2 = xT[:, h[:, 0]], xT[:, h[:, 1]], xT[:, h[:, 2]]
         e1 = xv - xn1
         e2 = xn2 - xv
-        l1 = torch.linalg.vector_norm(e1, dim=0).clamp_min(_EPS_LEN)
-        l2 = torch.linalg.vector_norm(e2, dim=0).clamp_min(_EPS_LEN)
+        l1 = torch.sqrt(_dot(e1, e1)).clamp_min(_EPS_LEN)
+        l2 = torch.sqrt(_dot(e2, e2)).clamp_min(_EPS_LEN)
         u1, u2 = e1 / l1, e2 / l2
         q = _dot(u1, u2)
         cq = (_C * q).clamp(-_C, _C)

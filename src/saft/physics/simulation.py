@@ -108,6 +108,7 @@ class _Sim:
         self.mode = hessian
         self.solver_kind = solver
         self.tol = tol
+        self.keep_matrices_bytes = 512 * 2**20
         self.stats = SolveStats()
         self.use_numpy = (solver == "lu") or (solver == "auto" and t.device.type == "cpu")
         self.m3 = t.mass[:, None].expand(-1, 3)  # (V, 3)
@@ -199,6 +200,9 @@ class _RolloutFn(torch.autograd.Function):
         solver = sim.new_solver()
         m3 = sim.m3
         pinned = sim.pinned
+        # keep the system matrices for the adjoint pass when they fit the memory budget
+        keep_A = (N - 1) * ns * t.nnz * x0.element_size() <= sim.keep_matrices_bytes
+        A_saved = []
         for k in range(N - 1):
             a = a_const if a_vert is None else a_const + a_vert[k]
             _check(a, "external acceleration", k, 0)
@@ -220,6 +224,8 @@ class _RolloutFn(torch.autograd.Function):
                     b.view(V, 3)[pinned] = vP
                     A = A * sim.keep
                     A[sim.pin_diag] = 1.0
+                if keep_A:
+                    A_saved.append(A)
                 v1 = sim.lin_solve(solver, A, b, vd.reshape(-1)).reshape(V, 3)
                 if pinned is not None:
                     v1[pinned] = vP
@@ -232,6 +238,7 @@ class _RolloutFn(torch.autograd.Function):
             positions[k + 1] = x
         ctx.sim = sim
         ctx.solver = solver
+        ctx.A_saved = A_saved if keep_A else None
         ctx.save_for_backward(x0, saved, lY, lB, lS, damping, a_const, a_vert if a_vert is not None else x0.new_empty(0))
         ctx.has_avert = a_vert is not None
         return positions
@@ -266,11 +273,14 @@ class _RolloutFn(torch.autograd.Function):
                     gx[pinned] = 0.0
                     gv[pinned] = 0.0
                 ev = ElementEval(t, x, Y, B, S, sim.mode)
-                _, A = sim.system(ev)
+                if ctx.A_saved is not None:
+                    A = ctx.A_saved[i]
+                else:
+                    _, A = sim.system(ev)
+                    if pinned is not None:
+                        A = A * sim.keep
+                        A[sim.pin_diag] = 1.0
                 rhs = (gv + h * gx).reshape(-1)
-                if pinned is not None:
-                    A = A * sim.keep
-                    A[sim.pin_diag] = 1.0
                 lam = sim.lin_solve(solver, A, rhs, lam_guess)
                 _check(lam, "adjoint", k, s)
                 lam_guess = lam
@@ -289,6 +299,7 @@ class _RolloutFn(torch.autograd.Function):
                 gv = d * mlam
                 _check(gx, "position adjoint", k, s)
             gx = gx + grad_pos[k]
+        ctx.A_saved = None
         if pinned is not None:
             # pinned targets are constants; x0 at pinned vertices only reaches positions[0]
             gx[pinned] = grad_pos[0][pinned]
