@@ -1,6 +1,7 @@
 """The `saft` command.
 
     saft demo [--out DIR]                       synthetic scene → reconstruction → evaluation table
+    saft reconstruct SCENE --out DIR            texture, shape (and appearance) of a scene's cloth
     saft evaluate RESULT_DIR --gt GT_OR_SCENE   CD2, CD1, p2s per frame and mean; writes metrics.json
     saft inspect SCENE                          check a scene and print what saft reads from it
     saft info                                   versions, devices and rendering backends available
@@ -47,9 +48,39 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _load_config(args: argparse.Namespace):
+    from saft.config_io import load_config
+    from saft.reconstruct import SaftConfig
+
+    overrides = list(args.set or [])
+    if getattr(args, "device", None):
+        overrides.append(f'run.device="{args.device}"')
+    return load_config(SaftConfig, args.config, overrides)
+
+
+def cmd_reconstruct(args: argparse.Namespace) -> int:
+    from saft.reconstruct import reconstruct
+    from saft.scene import load_scene
+
+    cfg = _load_config(args)
+    scene = load_scene(args.scene, root=args.root)
+    if args.frames:
+        scene = scene.with_frames(min(args.frames, scene.num_frames))
+    outcome = reconstruct(scene, cfg, args.out, resume=args.resume, quiet=args.quiet)
+    log.info("result written to %s", outcome.out_dir)
+    if args.gt is not None:
+        from saft.evaluate import evaluate_result_dir, format_metrics_table, ground_truth_spec_for
+
+        spec = ground_truth_spec_for(scene, None if args.gt == "scene" else args.gt, root=args.root)
+        metrics = evaluate_result_dir(args.out, spec, allow_partial=bool(args.frames))
+        print(format_metrics_table(metrics))
+    return 0
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
-    print("saft demo: the reconstruction pipeline is not there yet (issue: reconstruction); "
-          "`saft evaluate` and the scene readers are.")
+    from saft.demo import run_demo
+
+    run_demo(args.out, quiet=args.quiet, device=args.device)
     return 0
 
 
@@ -93,8 +124,26 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("demo", help="reconstruct a built-in synthetic example and print its accuracy")
     p.add_argument("--out", type=Path, default=Path("saft-demo"), help="result folder (default ./saft-demo)")
+    p.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto")
     _add_common(p)
     p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("reconstruct", help="reconstruct the cloth's shape in every frame of a scene",
+                       description="Texture mapping, physics-based shape from template (and appearance) "
+                                   "of SCENE; writes the result folder OUT (see docs/result-layout in README).")
+    p.add_argument("scene", type=Path, help="a native scene folder or a SAFT/PG-SfT scene .json")
+    p.add_argument("--out", required=True, type=Path, help="result folder")
+    p.add_argument("--device", choices=["auto", "cpu", "cuda"], default=None, help="default: auto")
+    p.add_argument("--config", type=Path, default=None, help="a TOML config (see a result's config.toml)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="override one config value, e.g. --set shape.lambda_force=0 (repeatable)")
+    p.add_argument("--resume", action="store_true", help="continue an interrupted run from OUT/checkpoint")
+    p.add_argument("--gt", nargs="?", const="scene", default=None, type=str,
+                   help="evaluate against ground truth afterwards (default: the scene's own)")
+    p.add_argument("--frames", type=int, default=None, help="use only the first N frames")
+    p.add_argument("--root", type=Path, default=None, help="dataset root for a SAFT/PG-SfT scene JSON")
+    _add_common(p)
+    p.set_defaults(func=cmd_reconstruct)
 
     p = sub.add_parser("evaluate", help="compare a result's meshes with ground-truth point clouds",
                        description="Per-frame and mean CD2 (1e-4 m²), CD1 (cm), p2s (mm) of RESULT_DIR/meshes/"

@@ -6,8 +6,13 @@ import shutil
 import numpy as np
 import pytest
 
-from conftest import write_image
 from saft.cli import main
+
+
+def write_image(path, img):
+    import imageio.v3 as iio
+
+    iio.imwrite(path, img)
 
 
 def run(capsys, *argv):

@@ -32,6 +32,12 @@ Sequences (``evaluate.py``)
         allow_partial (then the common prefix, with a warning), writes ``result_dir/metrics.json``.
     ``format_metrics_table(metrics) -> str``  per-frame rows and a mean row.
 
+Scenes (``scene_gt.py``)
+    ``ground_truth_spec_for(scene, path=None, frame=None, flip_axes=None)`` the scene's own ground truth
+        (camera-frame clouds taken to the world frame with the scene's camera);
+    ``ground_truth_spec_from_path(path, frame=None, flip_axes=None, root=None)`` for ``saft evaluate --gt``;
+    ``evaluate_static_template(scene, spec)`` the baseline; ``format_comparison_table({name: metrics})``.
+
 Input problems (missing folder, no files, wrong shapes, unreadable files, count mismatch) raise
 ``saft.errors.SaftInputError`` naming the file or folder.
 """
@@ -75,3 +81,9 @@ __all__ = [
     "ground_truth_files", "load_ground_truth_frames", "nearest_neighbor_distances",
     "point_to_surface_distances", "read_point_cloud", "sample_surface",
 ]
+from saft.evaluate.scene_gt import (
+    evaluate_static_template,
+    format_comparison_table,
+    ground_truth_spec_for,
+    ground_truth_spec_from_path,
+)

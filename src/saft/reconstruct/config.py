@@ -1,0 +1,101 @@
+"""Every hyperparameter of a reconstruction, in one typed config with the published method's defaults.
+
+Defaults come from ../shared/REFERENCE.md (the authors' code where it differs from the paper). The config
+is saved as DIR/config.toml beside every result; `--config FILE.toml` and `--set key=value` override it,
+and unknown keys or wrong types are rejected (saft.config_io).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+
+@dataclass
+class RunConfig:
+    device: Literal["auto", "cpu", "cuda"] = "auto"
+    seed: int = 0
+    threads: int = 0                      # torch CPU threads; 0 = automatic
+    checkpoint_seconds: float = 20.0      # write the resume state at most this often (and at phase ends)
+
+
+@dataclass
+class RenderConfig:
+    backend: Literal["auto", "torch", "nvdiffrast"] = "auto"
+    scale: float = 1.0                    # working image = crop resized by this factor (1 = native, as the paper)
+
+
+@dataclass
+class TextureConfig:
+    """Phase 1: a texture fitted on frame 0 with the template geometry."""
+
+    enabled: bool = True
+    epochs: int = 200
+    size: int = 512                       # texture is size × size texels
+    init_value: float = 0.5
+    init_from_scene: bool = True          # start from the scene's texture.png when it has one
+    lr: float = 5e-2
+    lambda_smooth: float = 1e-4           # λ_T · FD(T)
+
+
+@dataclass
+class PhysicsConfig:
+    substeps: int = 4                     # simulation steps per video frame (h = frame_dt / substeps)
+    density: float = 0.1                  # kg/m² (areal density; only the ratio force/mass matters)
+    damping: float = 0.9                  # velocity factor applied before each substep
+    log10_Y_init: float = math.log10(200.0)
+    log10_B_init: float = -3.0
+    log10_S_init: float = -4.0
+    log10_Y_range: tuple[float, float] = (1.0, 3.0)
+    log10_B_range: tuple[float, float] = (-5.0, -2.0)
+    log10_S_range: tuple[float, float] = (-4.0, -2.0)
+
+
+@dataclass
+class ShapeConfig:
+    """Phase 2: physics-based shape from template (paper section 3.3.2)."""
+
+    enabled: bool = True
+    initial_frames: int = 3               # frames 0..2 first
+    add_frame_every: int = 5              # one more frame every 5 epochs
+    final_epochs: int = 15                # then this many epochs with all frames
+    lambda_image: float = 1.0
+    lambda_sil: float = 0.2
+    lambda_energy: float = 2.0            # R_E, stiffnesses detached
+    lambda_force: float = 2e-4            # R_F
+    force_directions: Literal["current", "template"] = "current"  # viewing directions for R_F
+    optimize_stiffness: bool = True
+    lr_stiffness: float = 2e-2
+    lr_const_accel: float = 1e-1
+    lr_vertex_accel: float = 2e-1
+    normalize_loss: bool = True           # divide the loss by its detached value before backward
+    grad_clip: float = 1e3
+    autoclip_quantile: float = 0.75
+    center_vertex_accel: bool = True      # subtract the mean per-vertex acceleration before each epoch
+    warm_start_new_frames: bool = True    # a newly added frame starts from the previous frame's accelerations
+
+
+@dataclass
+class AppearanceSection:
+    """Phase 3 switch; the phase's own hyperparameters live in saft.appearance."""
+
+    enabled: bool = True
+
+
+@dataclass
+class SaftConfig:
+    run: RunConfig = field(default_factory=RunConfig)
+    render: RenderConfig = field(default_factory=RenderConfig)
+    texture: TextureConfig = field(default_factory=TextureConfig)
+    physics: PhysicsConfig = field(default_factory=PhysicsConfig)
+    shape: ShapeConfig = field(default_factory=ShapeConfig)
+    appearance: AppearanceSection = field(default_factory=AppearanceSection)
+
+
+def shape_schedule(num_frames: int, cfg: ShapeConfig) -> list[int]:
+    """Frames in use at each epoch of phase 2: initial_frames, +1 every add_frame_every epochs, then final_epochs."""
+    first = min(num_frames, max(2, cfg.initial_frames))
+    grow = (num_frames - first) * cfg.add_frame_every
+    frames = [min(num_frames, first + e // cfg.add_frame_every) for e in range(grow)]
+    return frames + [num_frames] * cfg.final_epochs

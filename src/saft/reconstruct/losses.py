@@ -1,0 +1,37 @@
+"""Losses and regularizers of the texture and shape phases (paper sections 3.3.1–3.3.2)."""
+
+from __future__ import annotations
+
+import torch
+
+
+def image_loss(rendered: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Mean squared RGB error over all pixels and channels, averaged over frames: (F, H, W, 3) each."""
+    return ((rendered - target) ** 2).mean()
+
+
+def silhouette_loss(mask: torch.Tensor, target_mask: torch.Tensor) -> torch.Tensor:
+    """Mean squared error of the antialiased coverage against the target mask: (F, H, W) each."""
+    return ((mask - target_mask) ** 2).mean()
+
+
+def finite_difference_smoothness(texture: torch.Tensor) -> torch.Tensor:
+    """FD(T) of the paper's supplement: mean L1 norm (over channels) of horizontal plus vertical neighbour
+    differences of an (H, W, C) image."""
+    dx = (texture[:, 1:] - texture[:, :-1]).abs().sum(dim=-1).mean()
+    dy = (texture[1:] - texture[:-1]).abs().sum(dim=-1).mean()
+    return dx + dy
+
+
+def force_regularizer(accel: torch.Tensor, positions: torch.Tensor, camera_center: torch.Tensor) -> torch.Tensor:
+    """R_F: mean over frames and vertices of |F − (F·d) d|, d the unit direction from the camera to the vertex.
+
+    accel: (F, V, 3) the per-vertex, per-frame external accelerations; positions: (F, V, 3) the vertex
+    positions the directions are taken at (the CURRENT simulated positions of the frames those forces
+    produce; detached: the directions are a weighting, not something to optimize).
+    """
+    d = positions.detach() - camera_center.to(positions)
+    d = d / d.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    d = d.to(accel.dtype)
+    along = (accel * d).sum(dim=-1, keepdim=True) * d
+    return (accel - along).norm(dim=-1).mean()

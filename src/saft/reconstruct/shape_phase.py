@@ -1,0 +1,194 @@
+"""Phase 2, physics-based shape from template (paper section 3.3.2).
+
+Each epoch simulates from the template through the frames in use and renders them with the fixed texture:
+
+    L = λ_im·L_im + λ_sil·L_sil + λ_E·R_E + λ_F·R_F
+
+L_im, L_sil: mean squared RGB / mask errors averaged over the frames in use; R_E: the deformation energy of
+the simulated frames with the stiffnesses detached (it regularizes the geometry, not the material); R_F:
+the external accelerations' components across the viewing directions of the CURRENT simulated vertices.
+The optimized parameters are log10 Y, B, S (clamped to their ranges), a constant acceleration (gravity +
+mean wind) and per-vertex per-frame accelerations, each with its own clipped Adam.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from saft.reconstruct.config import PhysicsConfig, ShapeConfig, shape_schedule
+from saft.reconstruct.context import PhaseContext
+from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_loss
+from saft.reconstruct.optim import ClippedAdam, ParamSpec
+
+# Frames rendered per batch inside an epoch; the physics graph is kept, the render graphs are not.
+RENDER_CHUNK = 8
+
+
+@dataclass
+class ShapeParams:
+    log10_Y: torch.Tensor
+    log10_B: torch.Tensor
+    log10_S: torch.Tensor
+    const_accel: torch.Tensor      # (3,)
+    vertex_accel: torch.Tensor     # (N-1, V, 3): during the substeps from frame k to k+1
+
+    def tensors(self) -> dict[str, torch.Tensor]:
+        return {"log10_Y": self.log10_Y, "log10_B": self.log10_B, "log10_S": self.log10_S,
+                "const_accel": self.const_accel, "vertex_accel": self.vertex_accel}
+
+
+@dataclass
+class ShapeState:
+    params: ShapeParams
+    optimizer: ClippedAdam
+    epoch: int = 0
+
+    def state_dict(self) -> dict:
+        return {"params": {k: v.detach().cpu() for k, v in self.params.tensors().items()},
+                "optimizer": self.optimizer.state_dict(), "epoch": self.epoch}
+
+
+def _make_optimizer(params: ShapeParams, cfg: ShapeConfig) -> ClippedAdam:
+    specs = [ParamSpec("const_accel", params.const_accel, cfg.lr_const_accel),
+             ParamSpec("vertex_accel", params.vertex_accel, cfg.lr_vertex_accel)]
+    if cfg.optimize_stiffness:
+        specs += [ParamSpec(n, getattr(params, n), cfg.lr_stiffness) for n in ("log10_Y", "log10_B", "log10_S")]
+    return ClippedAdam(specs, clip=cfg.grad_clip, quantile=cfg.autoclip_quantile)
+
+
+def new_shape_state(num_frames: int, num_vertices: int, gravity: np.ndarray, phys: PhysicsConfig,
+                    cfg: ShapeConfig, device, dtype=torch.float64) -> ShapeState:
+    def scalar(v):
+        return torch.tensor(float(v), dtype=dtype, device=device, requires_grad=cfg.optimize_stiffness)
+
+    params = ShapeParams(
+        log10_Y=scalar(phys.log10_Y_init), log10_B=scalar(phys.log10_B_init), log10_S=scalar(phys.log10_S_init),
+        const_accel=torch.tensor(np.asarray(gravity, dtype=np.float64), dtype=dtype, device=device).requires_grad_(True),
+        vertex_accel=torch.zeros(max(num_frames - 1, 0), num_vertices, 3, dtype=dtype, device=device,
+                                 requires_grad=True),
+    )
+    return ShapeState(params, _make_optimizer(params, cfg))
+
+
+def restore_shape_state(saved: dict, cfg: ShapeConfig, device) -> ShapeState:
+    p = {k: v.to(device).requires_grad_(k in ("const_accel", "vertex_accel") or cfg.optimize_stiffness)
+         for k, v in saved["params"].items()}
+    params = ShapeParams(**p)
+    state = ShapeState(params, _make_optimizer(params, cfg), saved["epoch"])
+    state.optimizer.load_state_dict(saved["optimizer"])
+    return state
+
+
+class ShapeSimulator:
+    """The cloth simulation of the scene, as a function of the shape parameters."""
+
+    def __init__(self, template: torch.Tensor, quads: np.ndarray, phys: PhysicsConfig, frame_dt: float,
+                 pinned: np.ndarray | None):
+        from saft.physics import ClothTopology
+
+        self.phys = phys
+        self.frame_dt = frame_dt
+        self.template = template
+        self.topology = ClothTopology.from_quads(template.detach().cpu().numpy(), quads, density=phys.density,
+                                                 device=template.device, dtype=template.dtype)
+        self.pinned = None if pinned is None or len(pinned) == 0 else torch.as_tensor(pinned, device=template.device)
+
+    def simulate(self, params: ShapeParams, num_frames: int) -> torch.Tensor:
+        """(num_frames, V, 3) positions, frame 0 = template."""
+        from saft.physics import PhysicsParams, rollout
+
+        damping = torch.tensor(self.phys.damping, dtype=self.template.dtype, device=self.template.device)
+        physics = PhysicsParams(log10_Y=params.log10_Y, log10_B=params.log10_B, log10_S=params.log10_S,
+                                damping=damping, a_const=params.const_accel,
+                                a_vert=params.vertex_accel[: num_frames - 1])
+        return rollout(self.topology, self.template, None, physics, num_frames=num_frames,
+                       substeps=self.phys.substeps, frame_dt=self.frame_dt, pinned=self.pinned)
+
+    def energy(self, positions: torch.Tensor, params: ShapeParams) -> torch.Tensor:
+        """Deformation energy of each frame (F,), stiffnesses detached (for R_E)."""
+        from saft.physics import deformation_energy
+
+        return deformation_energy(positions, self.topology, params.log10_Y.detach(), params.log10_B.detach(),
+                                  params.log10_S.detach())
+
+
+def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, cfg: ShapeConfig,
+                        texture: torch.Tensor, frames: int) -> dict[str, float]:
+    """Forward + backward of one epoch; leaves the gradients in the parameters. Returns the loss terms."""
+    params = state.params
+    positions = sim.simulate(params, frames)                      # (F, V, 3) float64, with graph
+    pos_leaf = positions.detach().to(torch.float32).requires_grad_(True)
+
+    # Render in chunks: each chunk's graph is freed after its backward into pos_leaf.
+    sums = {"image": 0.0, "silhouette": 0.0}
+    for start in range(0, frames, RENDER_CHUNK):
+        stop = min(frames, start + RENDER_CHUNK)
+        out = ctx.render(pos_leaf[start:stop], texture)
+        n = stop - start
+        l_img = image_loss(out.rgb, ctx.target_rgb[start:stop]) * (n / frames)
+        l_sil = silhouette_loss(out.mask, ctx.target_mask[start:stop]) * (n / frames)
+        chunk = cfg.lambda_image * l_img + cfg.lambda_sil * l_sil
+        if chunk.requires_grad:
+            chunk.backward()
+        sums["image"] += float(l_img.detach())
+        sums["silhouette"] += float(l_sil.detach())
+
+    # Regularizers on the physics side (float64).
+    energy = sim.energy(positions, params).mean()
+    cam_center = torch.as_tensor(ctx.camera.center, dtype=positions.dtype, device=positions.device)
+    if frames > 1:
+        accel = params.vertex_accel[: frames - 1]
+        dir_pos = positions[1:frames] if cfg.force_directions == "current" else sim.template.expand(frames - 1, -1, -1)
+        force = force_regularizer(accel, dir_pos, cam_center)
+    else:
+        force = torch.zeros((), dtype=positions.dtype, device=positions.device)
+    reg = cfg.lambda_energy * energy + cfg.lambda_force * force
+    grad_pos = pos_leaf.grad.to(positions.dtype) if pos_leaf.grad is not None else torch.zeros_like(positions)
+    torch.autograd.backward([positions, reg], [grad_pos, torch.ones_like(reg)])
+
+    total = (cfg.lambda_image * sums["image"] + cfg.lambda_sil * sums["silhouette"]
+             + cfg.lambda_energy * float(energy) + cfg.lambda_force * float(force))
+    if cfg.normalize_loss and total > 0:
+        # Dividing the loss by its detached value scales every gradient by 1/L (scale-free steps).
+        for t in params.tensors().values():
+            if t.grad is not None:
+                t.grad.div_(total)
+    return {"loss": total, "energy": float(energy), "force": float(force), **sums}
+
+
+def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, phys: PhysicsConfig,
+                    cfg: ShapeConfig, texture: torch.Tensor) -> torch.Tensor:
+    """Optimize through the frame schedule (continuing from state.epoch); returns all frames' positions."""
+    n_frames = ctx.target_rgb.shape[0]
+    schedule = shape_schedule(n_frames, cfg)
+    ranges = {"log10_Y": phys.log10_Y_range, "log10_B": phys.log10_B_range, "log10_S": phys.log10_S_range}
+    ctx.progress.start_phase("shape", len(schedule), state.epoch)
+    while state.epoch < len(schedule):
+        t0 = time.perf_counter()
+        frames = schedule[state.epoch]
+        params = state.params
+        previous = schedule[state.epoch - 1] if state.epoch > 0 else frames
+        if cfg.warm_start_new_frames and frames > previous and previous >= 2:
+            # Wind changes smoothly: the new transition starts from the last optimized one, not from zero.
+            with torch.no_grad():
+                params.vertex_accel[previous - 1: frames - 1] = params.vertex_accel[previous - 2]
+        if cfg.center_vertex_accel and params.vertex_accel.numel():
+            with torch.no_grad():
+                params.vertex_accel -= params.vertex_accel.mean(dim=(0, 1), keepdim=True)
+        state.optimizer.zero_grad()
+        terms = epoch_loss_and_grad(ctx, sim, state, cfg, texture, frames)
+        state.optimizer.step()
+        with torch.no_grad():
+            for name, (lo, hi) in ranges.items():
+                getattr(params, name).clamp_(lo, hi)
+        state.epoch += 1
+        ctx.log.add(phase="shape", epoch=state.epoch - 1, frames=frames, seconds=time.perf_counter() - t0, **terms)
+        ctx.progress.update(state.epoch - 1, frames, terms["loss"])
+        ctx.epoch_done("shape", state.epoch, state.state_dict)
+    ctx.progress.end_phase()
+    with torch.no_grad():
+        return sim.simulate(state.params, n_frames)
