@@ -30,7 +30,9 @@ def run_demo(out: str | Path, quiet: bool = False, device: str = "auto", overrid
         write_hanging_cloth(scene_dir, spec or HangingClothSpec())
     scene = load_scene(scene_dir)
     cfg = load_config(SaftConfig, None, DEMO_OVERRIDES + [f'run.device="{device}"'] + list(overrides or []))
-    reconstruct(scene, cfg, out, resume=True, quiet=quiet)
+    from saft.reconstruct.checkpoint import checkpoint_path
+
+    reconstruct(scene, cfg, out, resume=checkpoint_path(out).is_file(), quiet=quiet)
     spec_gt = ground_truth_spec_for(scene, None)
     ours = evaluate_result_dir(out, spec_gt)
     static = evaluate_static_template(scene, spec_gt)

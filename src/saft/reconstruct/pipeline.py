@@ -65,9 +65,9 @@ def reconstruct(scene: Scene, cfg: SaftConfig, out_dir: str | Path, *, resume: b
                 on_epoch: Callable[[str, int], None] | None = None) -> RunOutcome:
     """Run every enabled phase on `scene` and write the result folder `out_dir` (layout: saft.result).
 
-    `on_epoch(phase, epochs_done)` is called after every epoch (tests use it to simulate Ctrl-C by raising
-    KeyboardInterrupt… or by setting an interrupt); Ctrl-C stops at the end of the current epoch after
-    writing the checkpoint, and `resume=True` continues from it.
+    `on_epoch(phase, epochs_done)` is called after every epoch; returning True acts like Ctrl-C. Ctrl-C
+    stops at the end of the current epoch after writing the checkpoint (KeyboardInterrupt is raised then),
+    and `resume=True` continues from it.
     """
     out_dir = Path(out_dir)
     device = resolve_device(cfg.run.device)
@@ -107,8 +107,8 @@ def reconstruct(scene: Scene, cfg: SaftConfig, out_dir: str | Path, *, resume: b
         clock.mark()
 
     def epoch_done(phase: str, epochs_done: int, state_fn) -> None:
-        if on_epoch is not None:
-            on_epoch(phase, epochs_done)
+        if on_epoch is not None and on_epoch(phase, epochs_done):
+            guard.requested = True
         if guard.requested or clock.due():
             state[f"{phase}_state"] = state_fn()
             write_checkpoint()

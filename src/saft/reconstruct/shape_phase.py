@@ -151,13 +151,13 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
     torch.autograd.backward([positions, reg], [grad_pos, torch.ones_like(reg)])
 
     total = (cfg.lambda_image * sums["image"] + cfg.lambda_sil * sums["silhouette"]
-             + cfg.lambda_energy * float(energy) + cfg.lambda_force * float(force))
+             + cfg.lambda_energy * float(energy.detach()) + cfg.lambda_force * float(force.detach()))
     if cfg.normalize_loss and total > 0:
         # Dividing the loss by its detached value scales every gradient by 1/L (scale-free steps).
         for t in params.tensors().values():
             if t.grad is not None:
                 t.grad.div_(total)
-    return {"loss": total, "energy": float(energy), "force": float(force), **sums}
+    return {"loss": total, "energy": float(energy.detach()), "force": float(force.detach()), **sums}
 
 
 def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, phys: PhysicsConfig,

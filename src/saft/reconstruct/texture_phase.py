@@ -66,8 +66,8 @@ def run_texture_phase(ctx: PhaseContext, cfg: TextureConfig, state: TextureState
             state.texture.clamp_(0.0, 1.0)
         state.epoch += 1
         value = float(loss.detach())
-        ctx.log.add(phase="texture", epoch=state.epoch - 1, frames=1, loss=value, image=float(l_img),
-                    smooth=float(l_smooth), seconds=time.perf_counter() - t0)
+        ctx.log.add(phase="texture", epoch=state.epoch - 1, frames=1, loss=value, image=float(l_img.detach()),
+                    smooth=float(l_smooth.detach()), seconds=time.perf_counter() - t0)
         ctx.progress.update(state.epoch - 1, 1, value)
         ctx.epoch_done("texture", state.epoch, state.state_dict)
     ctx.progress.end_phase()

@@ -1,0 +1,53 @@
+import pytest
+
+from saft.cli import main
+from saft.config_io import from_dict, load_config, to_toml
+from saft.errors import SaftInputError
+from saft.reconstruct import SaftConfig
+
+
+def test_defaults_are_the_published_ones():
+    c = SaftConfig()
+    assert c.texture.epochs == 200 and c.texture.size == 512 and c.texture.lambda_smooth == 1e-4
+    assert c.shape.lambda_sil == 0.2 and c.shape.lambda_energy == 2.0 and c.shape.lambda_force == 2e-4
+    assert c.shape.lr_vertex_accel == 0.2 and c.shape.lr_const_accel == 0.1 and c.shape.lr_stiffness == 0.02
+    assert c.physics.substeps == 4 and c.physics.log10_Y_range == (1.0, 3.0)
+
+
+def test_toml_round_trip(tmp_path):
+    c = load_config(SaftConfig, None, ["shape.lambda_force=0", "texture.epochs=7", 'run.device="cpu"'])
+    assert c.shape.lambda_force == 0.0 and c.texture.epochs == 7 and c.run.device == "cpu"
+    path = tmp_path / "c.toml"
+    path.write_text(to_toml(c))
+    assert load_config(SaftConfig, path) == c
+
+
+@pytest.mark.parametrize("override, message", [
+    ("shape.lambda_forc=1", "unknown config key 'shape.lambda_forc'"),
+    ("nosuch.x=1", "unknown config key 'nosuch'"),
+    ("texture.epochs=1.5", "texture.epochs must be an integer"),
+    ("shape.enabled=3", "shape.enabled must be true or false"),
+    ('run.device="gpu"', "run.device must be one of"),
+    ("physics.log10_Y_range=[1]", "must have 2 elements"),
+])
+def test_bad_overrides_are_rejected(override, message):
+    with pytest.raises(SaftInputError, match=message.replace("(", r"\(").replace("[", r"\[")):
+        load_config(SaftConfig, None, [override])
+
+
+def test_bad_config_file_names_the_file(tmp_path, capsys, native_scene):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[shape]\nlambda_sil = 'a lot'\n")
+    code = main(["reconstruct", str(native_scene), "--out", str(tmp_path / "out"), "--config", str(bad)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and str(bad) in err and "shape.lambda_sil must be a number" in err
+    assert len(err.splitlines()) == 1
+    broken = tmp_path / "broken.toml"
+    broken.write_text("[shape\n")
+    assert main(["reconstruct", str(native_scene), "--out", str(tmp_path / "o2"), "--config", str(broken)]) == 2
+    assert "not valid TOML" in capsys.readouterr().err
+
+
+def test_section_must_be_a_table():
+    with pytest.raises(SaftInputError, match="section shape must be a table"):
+        from_dict(SaftConfig, {"shape": 3})
