@@ -99,37 +99,39 @@ def render_cloth(vertices: torch.Tensor, triangles, uvs, texture: torch.Tensor, 
 
 
 def _render_cloth_torch(vertices, pos, tri, uv, tex, H, W, max_mip_level) -> RenderOutput:
-    """The same pipeline on the covered pixels only (structure-of-arrays kernels with hand-written
-    backwards, no dense intermediates); identical in value to the primitive pipeline (tested)."""
+    """The same pipeline on the covered pixels only: one per-triangle table of plane coefficients
+    (tb.plane_table) evaluated per pixel with a hand-written backward, texture on the covered pixels, and
+    dense images only at the end; identical in value to the primitive pipeline (tested)."""
     B, V, _ = vertices.shape
+    T = tri.shape[0]
     n_pix = B * H * W
     pix, tid = tb.visibility(pos, tri, (H, W))
-    vid = tb.pixel_vertex_ids(pos, tri, pix, tid, H, W)  # (3, P) into B·V
-    bw, zw, db = tb.bary_weights(pos, tri, pix, tid, (H, W), with_db=True, vid=vid)
+    with torch.no_grad():
+        if B == 1:
+            row_idx = tid
+            rem = pix
+        else:
+            b = torch.div(pix, H * W, rounding_mode="floor")
+            row_idx = b * T + tid
+            rem = pix - b * (H * W)
+        nx, ny = tb._pixel_ndc(rem, H, W, pos.dtype)
     uv_tex = torch.stack([uv[:, 0], 1.0 - uv[:, 1]], dim=-1)
     normals_v = vertex_normals(vertices, tri)
-    attr = torch.cat([uv_tex[None].expand(B, V, 2), pos[..., 3:4], normals_v], dim=-1).reshape(B * V, 6)
-    vals = tb.interp_compact(bw, attr, vid)  # one gather for UV, camera depth and normals
-    uv_pix, geo = vals[:, :2], vals[:, 2:]
-    with torch.no_grad():
-        a = uv_tex.index_select(0, tri[tid].T.reshape(-1)).reshape(3, -1, 2)
-        d0, d1 = a[0] - a[2], a[1] - a[2]
-        uv_da = torch.stack([d0[:, 0] * db[0] + d1[:, 0] * db[2], d0[:, 0] * db[1] + d1[:, 0] * db[3],
-                             d0[:, 1] * db[0] + d1[:, 1] * db[2], d0[:, 1] * db[1] + d1[:, 1] * db[3]], dim=-1)
-    rgb_c = tb.texture_compact(tex, uv_pix, uv_da, boundary_mode="clamp", max_mip_level=max_mip_level)
+    table = tb.plane_table(pos, tri, uv_tex, normals_v)
+    uv_pix, depth_c, n, bw, zw, uv_da = tb.plane_interp(table, row_idx, nx, ny, H, W)
+    rgb_c = tb.texture_compact(tex, uv_pix.T, uv_da.T, boundary_mode="clamp", max_mip_level=max_mip_level)
     ones = torch.ones_like(rgb_c[:, :1])
     color = tb._scatter_rows(torch.cat([rgb_c.to(pos.dtype), ones], dim=-1), pix, n_pix).reshape(B, H, W, 4)
     with torch.no_grad():
         tid_img = torch.full((n_pix,), -1, dtype=torch.long, device=pos.device)
         tid_img[pix] = tid
         depth_img = torch.full((n_pix,), math.inf, dtype=pos.dtype, device=pos.device)
-        depth_img[pix] = zw.detach()
+        depth_img[pix] = zw
         rast = pos.new_zeros(n_pix, 4)
-        rast[pix] = torch.stack([bw[0].detach(), bw[1].detach(), zw.detach(), (tid + 1).to(pos.dtype)], dim=-1)
+        rast[pix] = torch.stack([bw[0], bw[1], zw, (tid + 1).to(pos.dtype)], dim=-1)
     aa = tb.antialias_core(color, tid_img.reshape(B, H, W), depth_img.reshape(B, H, W), pos, tri)
-    depth = tb._scatter_rows(geo[:, :1], pix, n_pix).reshape(B, H, W)
-    n = geo[:, 1:]
-    n = n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    normals = tb._scatter_rows(n, pix, n_pix).reshape(B, H, W, 3)
+    depth = tb._scatter_rows(depth_c[:, None], pix, n_pix).reshape(B, H, W)
+    n = n / n.norm(dim=0).clamp_min(1e-12)
+    normals = tb._scatter_rows(n.T, pix, n_pix).reshape(B, H, W, 3)
     return RenderOutput(rgb=aa[..., :3], mask=aa[..., 3], depth=depth, normals=normals,
                         rast=rast.reshape(B, H, W, 4), pos_clip=pos)

@@ -681,3 +681,109 @@ def antialias_core(color: torch.Tensor, tid_img: torch.Tensor, depth_img: torch.
                    tri: torch.Tensor) -> torch.Tensor:
     """antialias() on a triangle-id image (B, H, W) long (−1 empty) and a depth image (inf empty)."""
     return _antialias_impl(color, tid_img, depth_img, pos, tri)
+
+
+# ------------------------------------------------------------------------------------------ plane kernels
+# Used by render_cloth's torch path. In clip space the (unnormalised) perspective-correct barycentric of
+# vertex k at the pixel whose ray has NDC (nx, ny) is c_k = X_i Y_j − X_j Y_i (i, j = k+1, k+2) with
+# X = x − nx·w, Y = y − ny·w; the nx·ny terms cancel, so c_k is AFFINE in (nx, ny), and so is Σ_k c_k a_k
+# for any vertex attribute a. Every interpolated quantity is then (affine numerator) / (affine s = Σ c_k):
+# one row of plane coefficients per triangle, one gather per pixel, one index_add per backward.
+PLANE_COLS = ("s", "u", "v", "w", "n0", "n1", "n2", "c0", "c1", "z")
+_NP = len(PLANE_COLS)  # numerators per triangle
+_NG = 7  # the leading columns that can carry gradient (s, u, v, w, normal)
+
+
+def plane_table(pos: torch.Tensor, tri: torch.Tensor, uv: torch.Tensor, normals: torch.Tensor) -> torch.Tensor:
+    """(B·T, 2 + 3·10) per-triangle rows [rx, ry, α(10), β(10), γ(10)]: numerator j at NDC (nx, ny) is
+    α_j + β_j (nx − rx) + γ_j (ny − ry), for the columns PLANE_COLS (s = Σ c_k, the attributes u, v (B|1, V,
+    2), w, normals (B, V, 3) times c, c0, c1 and c·z). (rx, ry) is the NDC of the triangle's clip-space
+    centroid (a constant of the expansion, kept close to the pixels for precision; no gradient).
+    Differentiable (plain autograd: it is per triangle, not per pixel)."""
+    B = pos.shape[0]
+    T = tri.shape[0]
+    p = pos[:, tri]  # (B, T, 3, 4)
+    x, y, z, w = p.unbind(-1)  # (B, T, 3)
+    with torch.no_grad():
+        sw = w.sum(-1)
+        ok = sw.abs() > _W_EPS
+        sw = torch.where(ok, sw, torch.ones_like(sw))
+        rx = torch.where(ok, x.sum(-1) / sw, torch.zeros_like(sw))
+        ry = torch.where(ok, y.sum(-1) / sw, torch.zeros_like(sw))
+    X = x - rx[..., None] * w
+    Y = y - ry[..., None] * w
+    Xi, Yi, wi = X.roll(-1, -1), Y.roll(-1, -1), w.roll(-1, -1)
+    Xj, Yj, wj = X.roll(-2, -1), Y.roll(-2, -1), w.roll(-2, -1)
+    alpha = Xi * Yj - Xj * Yi  # (B, T, 3): c_k at (rx, ry)
+    beta = wj * Yi - wi * Yj  # dc_k/dnx
+    gamma = Xj * wi - Xi * wj  # dc_k/dny
+    cm = torch.stack([alpha, beta, gamma], dim=-2)  # (B, T, 3 coef, 3 vertex)
+    if uv.dim() == 2:
+        uv = uv[None]
+    attr = torch.cat([uv.expand(B, -1, -1), pos[..., 3:4], normals], dim=-1)[:, tri]  # (B, T, 3, 6)
+    num = cm @ attr  # (B, T, 3, 6): u, v, w, n
+    s = cm.sum(-1, keepdim=True)
+    cz = (cm * z[:, :, None, :]).sum(-1, keepdim=True)
+    tab = torch.cat([s, num, cm[..., 0:2], cz], dim=-1)  # (B, T, 3, 10) in PLANE_COLS order
+    return torch.cat([rx.reshape(B * T, 1), ry.reshape(B * T, 1), tab.reshape(B * T, 3 * _NP)], dim=1)
+
+
+class _PlaneFn(torch.autograd.Function):
+    """Per-pixel evaluation of a plane_table, structure-of-arrays (one row per quantity, contiguous over
+    pixels): uv (2, P), depth w (P,), normal (3, P) with gradient to the table, and without gradient
+    bw (2, P), z/w (P,), uv_da (4, P) = (du/dX, du/dY, dv/dX, dv/dY) in pixels."""
+
+    @staticmethod
+    def forward(ctx, table, idx, nx, ny, H, W):
+        ctx.set_materialize_grads(False)
+        g = table.T.contiguous().index_select(1, idx)  # (32, P)
+        dx = nx - g[0]
+        dy = ny - g[1]
+        a, b, c = g[2:2 + _NP], g[2 + _NP:2 + 2 * _NP], g[2 + 2 * _NP:]
+        num = torch.addcmul(a, b, dx)
+        num.addcmul_(c, dy)  # (10, P)
+        s = num[0]
+        inv_s = torch.where(s == 0, torch.ones_like(s), s).reciprocal_()
+        vals = num[1:9] * inv_s  # u, v, w, n0, n1, n2, bw0, bw1
+        uv, depth, nrm, bw = vals[0:2], vals[2], vals[3:6], vals[6:8]
+        cw = num[3]
+        zw = num[9] / torch.where(cw == 0, torch.ones_like(cw), cw)
+        # screen derivatives of u and v: d(N/s) = (dN − (N/s) ds)/s, NDC → pixels: ×2/W, ×2/H
+        sx, sy = inv_s * (2.0 / W), inv_s * (2.0 / H)
+        uv_da = torch.empty(4, uv.shape[1], dtype=uv.dtype, device=uv.device)
+        for r, (d, k, sc) in enumerate(((b, 1, sx), (c, 1, sy), (b, 2, sx), (c, 2, sy))):
+            torch.mul(torch.addcmul(d[k], uv[k - 1], d[0], value=-1.0), sc, out=uv_da[r])
+        ctx.mark_non_differentiable(bw, zw, uv_da)
+        ctx.save_for_backward(idx, dx, dy, inv_s, vals)
+        ctx.m = table.shape[0]
+        return uv, depth, nrm, bw, zw, uv_da
+
+    @staticmethod
+    def backward(ctx, g_uv, g_depth, g_n, *_):
+        idx, dx, dy, inv_s, vals = ctx.saved_tensors
+        if g_uv is None and g_depth is None and g_n is None:
+            return None, None, None, None, None, None
+        ncol = 7 if g_n is not None else (4 if g_depth is not None else 3)
+        P = idx.shape[0]
+        rows = vals.new_zeros(3, ncol, P)  # (coef, column, pixel): index_add along the last dim is fast
+        gN = rows[0]
+        gs = gN[0]
+        for lo, hi, gg in ((1, 3, g_uv), (3, 4, g_depth), (4, 7, g_n)):
+            if gg is None:
+                continue
+            torch.mul(gg, inv_s, out=gN[lo:hi])
+            for k in range(lo, hi):
+                gs.addcmul_(gN[k], vals[k - 1], value=-1.0)
+        torch.mul(gN, dx, out=rows[1])
+        torch.mul(gN, dy, out=rows[2])
+        acc = rows.new_zeros(3, ncol, ctx.m).index_add_(2, idx, rows)
+        g_table = rows.new_zeros(ctx.m, 2 + 3 * _NP)
+        g_table[:, 2:].view(ctx.m, 3, _NP)[:, :, :ncol] = acc.permute(2, 0, 1)
+        return g_table, None, None, None, None, None
+
+
+def plane_interp(table: torch.Tensor, idx: torch.Tensor, nx: torch.Tensor, ny: torch.Tensor, H: int, W: int):
+    """Evaluate a plane_table at P pixels (row idx of the table, NDC nx, ny), structure-of-arrays:
+    uv (2, P), depth (P,), normal (3, P) (differentiable w.r.t. the table), bw (2, P), z/w (P,),
+    uv_da (4, P) (no gradient)."""
+    return _PlaneFn.apply(table, idx, nx, ny, H, W)
