@@ -36,7 +36,8 @@ class AppearanceResult:
     envmap: np.ndarray
     losses: list[float]
     config: AppearanceConfig
-    seconds: float = 0.0
+    seconds: float = 0.0              # wall-clock time of the fit
+    cpu_seconds: float = 0.0          # CPU time of this process (all threads) during the fit
     state: dict | None = field(default=None, repr=False)
 
 
@@ -158,7 +159,7 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
                 "opt_maps": copy.deepcopy(opt_maps.state_dict()), "opt_env": copy.deepcopy(opt_env.state_dict()),
                 "losses": list(losses), "config": cfg.to_dict()}
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     batch = cfg.frames_per_epoch if 0 < cfg.frames_per_epoch < n_frames else n_frames
     for epoch in range(start_epoch, cfg.epochs):
         w = colour_weight(epoch, cfg.epochs, cfg.grey_fraction, cfg.blend_fraction)
@@ -218,6 +219,7 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
         losses=losses,
         config=cfg,
         seconds=time.perf_counter() - t0,
+        cpu_seconds=time.process_time() - c0,
         state=final_state,
     )
 
@@ -309,7 +311,7 @@ def save_appearance(result: AppearanceResult, out_dir) -> dict[str, Path]:
     _write_exr(paths["envmap"], result.envmap)
     write_image(paths["envmap_preview"], env_preview(result.envmap))
     atomic_write_json(paths["summary"], {"config": result.config.to_dict(), "losses": result.losses,
-                                         "seconds": result.seconds})
+                                         "seconds": result.seconds, "cpu_seconds": result.cpu_seconds})
     return paths
 
 
@@ -319,12 +321,13 @@ def load_appearance(out_dir) -> AppearanceResult:
 
     mat = Path(out_dir) / "material"
     summary = json.loads((mat / "appearance.json").read_text())
+    cfg = AppearanceConfig.from_dict(summary.get("config", {}))
     return AppearanceResult(
         diffuse=srgb_to_linear(read_image(mat / "diffuse.png")[..., :3]),
-        roughness=read_image(mat / "roughness.png")[..., 0],
+        roughness=np.maximum(read_image(mat / "roughness.png")[..., 0], cfg.min_roughness),
         metallic=read_image(mat / "metallic.png")[..., 0],
         envmap=_read_exr(mat / "envmap.exr")[..., :3],
         losses=list(summary.get("losses", [])),
-        config=AppearanceConfig.from_dict(summary.get("config", {})),
+        config=cfg,
         seconds=float(summary.get("seconds", 0.0)),
     )
