@@ -119,9 +119,9 @@ def _render_cloth_torch(vertices, pos, tri, uv, tex, H, W, max_mip_level) -> Ren
     normals_v = vertex_normals(vertices, tri)
     table = tb.plane_table(pos, tri, uv_tex, normals_v)
     uv_pix, depth_c, n, bw, zw, uv_da = tb.plane_interp(table, row_idx, nx, ny, H, W)
-    rgb_c = tb.texture_compact(tex, uv_pix.T, uv_da.T, boundary_mode="clamp", max_mip_level=max_mip_level)
-    ones = torch.ones_like(rgb_c[:, :1])
-    color = tb._scatter_rows(torch.cat([rgb_c.to(pos.dtype), ones], dim=-1), pix, n_pix).reshape(B, H, W, 4)
+    rgb_c = tb.texture_fast(tex, uv_pix[0], uv_pix[1], uv_da, max_mip_level=max_mip_level)
+    ones = torch.ones_like(rgb_c[:1])
+    color = tb._scatter_rows(torch.cat([rgb_c.to(pos.dtype), ones], dim=0).T, pix, n_pix).reshape(B, H, W, 4)
     with torch.no_grad():
         tid_img = torch.full((n_pix,), -1, dtype=torch.long, device=pos.device)
         tid_img[pix] = tid

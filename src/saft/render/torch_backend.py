@@ -787,3 +787,183 @@ def plane_interp(table: torch.Tensor, idx: torch.Tensor, nx: torch.Tensor, ny: t
     uv (2, P), depth (P,), normal (3, P) (differentiable w.r.t. the table), bw (2, P), z/w (P,),
     uv_da (4, P) (no gradient)."""
     return _PlaneFn.apply(table, idx, nx, ny, H, W)
+
+
+# ------------------------------------------------------------------------------------------ fast texture
+def _down2(t: torch.Tensor) -> torch.Tensor:
+    """2×2 box filter of a planar (C, h, w) level (odd sizes drop the last row/column), as _PyramidFn."""
+    _, h, w = t.shape
+    h2, w2 = max(1, h // 2), max(1, w // 2)
+    fy, fx = (2 if h >= 2 else 1), (2 if w >= 2 else 1)
+    t = t[:, :h2 * fy, :w2 * fx]
+    if fy == 2:
+        t = t[:, 0::2] + t[:, 1::2]
+    if fx == 2:
+        t = t[:, :, 0::2] + t[:, :, 1::2]
+    return t * (1.0 / (fy * fx)) if fy * fx > 1 else t.clone()
+
+
+def _down2_adjoint(g: torch.Tensor, shape) -> torch.Tensor:
+    """Adjoint of _down2: the gradient of level L (C, h2, w2) spread over level L−1 of `shape`."""
+    C, h, w = shape
+    _, h2, w2 = g.shape
+    fy, fx = (2 if h >= 2 else 1), (2 if w >= 2 else 1)
+    up = (g * (1.0 / (fy * fx)))[:, :, None, :, None].expand(C, h2, fy, w2, fx).reshape(C, h2 * fy, w2 * fx)
+    if (h2 * fy, w2 * fx) != (h, w):
+        up = F.pad(up, (0, w - w2 * fx, 0, h - h2 * fy))
+    return up
+
+
+def _bilinear_taps(u: torch.Tensor, v: torch.Tensor, h: int, w: int):
+    """Clamp-to-edge bilinear lookup at the texel-centre convention (grid_sample, border padding,
+    align_corners=False): tap indices (4, P) into the h·w texels (order 00, 01, 10, 11), fractions fx, fy,
+    and the masks where the coordinate is strictly inside (where grid_sample's coordinate gradient is 1)."""
+    x = u * w - 0.5
+    y = v * h - 0.5
+    insx = (x > 0) & (x < w - 1)
+    insy = (y > 0) & (y < h - 1)
+    x = x.clamp(0.0, w - 1.0)
+    y = y.clamp(0.0, h - 1.0)
+    # the left/top tap at most at w−2 / h−2 (fx = 1 at the last texel): constant tap offsets
+    x0f = x.floor().clamp_(max=max(w - 2, 0))
+    y0f = y.floor().clamp_(max=max(h - 2, 0))
+    fx = x - x0f
+    fy = y - y0f
+    i00 = (y0f * w + x0f).long()
+    ox, oy = (1 if w >= 2 else 0), (w if h >= 2 else 0)
+    offs = torch.tensor([0, ox, oy, oy + ox], device=u.device)
+    return i00[None] + offs[:, None], fx, fy, insx, insy
+
+
+class _TexFn(torch.autograd.Function):
+    """Trilinear (or bilinear) clamp-mode texture lookup on a box-filtered pyramid, structure-of-arrays:
+    planar texture levels (C, h·w), taps and weights (4, P), output (C, P); every per-pixel operation runs
+    on contiguous rows. Hand-written backward (an index_add per channel and level, the pyramid's adjoint,
+    and the coordinate gradient)."""
+
+    @staticmethod
+    def forward(ctx, tex, u, v, lo, frac, n_levels):
+        Ht, Wt, C = tex.shape
+        P = u.shape[0]
+        levels = [tex.detach().permute(2, 0, 1).contiguous()]
+        for _ in range(n_levels - 1):
+            levels.append(_down2(levels[-1]))
+        if lo is None:  # every pixel on level 0 with weight 1
+            plan = [(0, None, None)]
+        else:
+            lmin, lmax = int(lo.min()), int(lo.max())
+            plan = []
+            for level in range(lmin, min(n_levels, lmax + 2)):
+                wgt = torch.where(lo == level, 1.0 - frac, torch.where((lo == level - 1) & (frac > 0), frac,
+                                                                        torch.zeros_like(frac)))
+                if lmin == lmax == level:
+                    plan.append((level, None, wgt))
+                    continue
+                sel = torch.nonzero(wgt > 0).squeeze(1)
+                if sel.numel():
+                    plan.append((level, sel, wgt.index_select(0, sel)))
+        out = None
+        saved = []
+        for level, sel, a in plan:
+            t = levels[level]
+            _, h, w = t.shape
+            us, vs = (u, v) if sel is None else (u.index_select(0, sel), v.index_select(0, sel))
+            idx, fx, fy, insx, insy = _bilinear_taps(us, vs, h, w)
+            gx, gy = 1.0 - fx, 1.0 - fy
+            bw = torch.stack([gx * gy, fx * gy, gx * fy, fx * fy])  # (4, S)
+            if a is not None:
+                bw *= a
+            bw = bw.to(t.dtype)
+            tv = t.reshape(C, h * w).index_select(1, idx.reshape(-1)).reshape(C, 4, -1)  # (C, 4, S)
+            val = (tv * bw).sum(1)  # (C, S)
+            if sel is None:
+                out = val if out is None else out + val
+            else:
+                if out is None:
+                    out = val.new_zeros(C, P)
+                out.index_add_(1, sel, val)
+            saved.append((level, sel, a, idx, fx, fy, insx, insy, bw, tv))
+        ctx.saved = saved
+        ctx.shapes = [t.shape for t in levels]
+        ctx.needs = ctx.needs_input_grad[:3]
+        return out
+
+    @staticmethod
+    def backward(ctx, g):
+        need_tex, need_u, need_v = ctx.needs
+        shapes = ctx.shapes
+        g = g.contiguous()  # (C, P)
+        C = g.shape[0]
+        g_lvl = [None] * len(shapes)
+        gu = g.new_zeros(g.shape[1]) if need_u else None
+        gv = g.new_zeros(g.shape[1]) if need_v else None
+        for level, sel, a, idx, fx, fy, insx, insy, bw, tv in ctx.saved:
+            _, h, w = shapes[level]
+            gs = g if sel is None else g.index_select(1, sel)
+            if need_tex:
+                acc = g.new_zeros(C, h * w)
+                flat = idx.reshape(-1)
+                for c in range(C):
+                    acc[c].index_add_(0, flat, (bw * gs[c]).reshape(-1))
+                acc = acc.reshape(C, h, w)
+                g_lvl[level] = acc if g_lvl[level] is None else g_lvl[level] + acc
+            if gu is not None or gv is not None:
+                gd = tv[0] * gs[0]
+                for c in range(1, C):
+                    gd.addcmul_(tv[c], gs[c])  # (4, S): <g, texel k>
+                gd = gd.to(fx.dtype)
+                if a is not None:
+                    gd *= a
+                gx, gy = 1.0 - fx, 1.0 - fy
+                if gu is not None:  # d/dx of the blend: (1−fy)(t01 − t00) + fy (t11 − t10)
+                    d = (gy * (gd[1] - gd[0]) + fy * (gd[3] - gd[2])) * (w * insx.to(fx.dtype))
+                    if sel is None:
+                        gu += d
+                    else:
+                        gu.index_add_(0, sel, d)
+                if gv is not None:
+                    d = (gx * (gd[2] - gd[0]) + fx * (gd[3] - gd[1])) * (h * insy.to(fx.dtype))
+                    if sel is None:
+                        gv += d
+                    else:
+                        gv.index_add_(0, sel, d)
+        g_tex = None
+        if need_tex:
+            acc = None
+            for level in range(len(shapes) - 1, 0, -1):
+                if g_lvl[level] is not None:
+                    acc = g_lvl[level] if acc is None else acc + g_lvl[level]
+                if acc is not None:
+                    acc = _down2_adjoint(acc, shapes[level - 1])
+            g_tex = g_lvl[0] if acc is None else (acc if g_lvl[0] is None else acc + g_lvl[0])
+            if g_tex is None:
+                g_tex = g.new_zeros(shapes[0])
+            g_tex = g_tex.permute(1, 2, 0)
+        return g_tex, gu, gv, None, None, None
+
+
+def texture_fast(tex: torch.Tensor, u: torch.Tensor, v: torch.Tensor, uv_da: torch.Tensor | None = None,
+                 max_mip_level: int | None = None) -> torch.Tensor:
+    """texture_compact(tex, stack([u, v], 1), uv_da.T, 'clamp', max_mip_level).T for render_cloth, in
+    value and gradient, structure-of-arrays: tex (Ht, Wt, C), u, v (P,), uv_da (4, P) or None → (C, P).
+    Differentiable w.r.t. tex, u and v."""
+    Ht, Wt, C = tex.shape
+    if u.shape[0] == 0:
+        return u.new_zeros(C, 0, dtype=tex.dtype)
+    lo = frac = None
+    n_levels = 1
+    if uv_da is not None:
+        with torch.no_grad():
+            lx2 = (uv_da[0] * Wt).square_().add_((uv_da[2] * Ht).square_())
+            ly2 = (uv_da[1] * Wt).square_().add_((uv_da[3] * Ht).square_())
+            m2 = torch.maximum(lx2, ly2)
+            max_levels = _mip_count(Ht, Wt)
+            if max_mip_level is not None:
+                max_levels = min(max_levels, int(max_mip_level) + 1)
+            if max_levels > 1 and bool((m2 > 1.0).any()):  # else lod ≤ 0 everywhere: level 0 only
+                lod = (0.5 * torch.log2(m2.clamp_min(1e-30))).clamp_(0.0, max_levels - 1)
+                lo_f = lod.floor()
+                frac = (lod - lo_f).to(u.dtype)
+                lo = lo_f.long()
+                n_levels = min(max_levels, int(lo.max()) + 2)
+    return _TexFn.apply(tex, u, v, lo, frac, n_levels)
