@@ -123,15 +123,13 @@ def _render_cloth_torch(vertices, pos, tri, uv, tex, H, W, max_mip_level) -> Ren
     ones = torch.ones_like(rgb_c[:1])
     color = tb._scatter_rows(torch.cat([rgb_c.to(pos.dtype), ones], dim=0).T, pix, n_pix).reshape(B, H, W, 4)
     with torch.no_grad():
-        tid_img = torch.full((n_pix,), -1, dtype=torch.long, device=pos.device)
-        tid_img[pix] = tid
-        depth_img = torch.full((n_pix,), math.inf, dtype=pos.dtype, device=pos.device)
-        depth_img[pix] = zw
-        rast = pos.new_zeros(n_pix, 4)
-        rast[pix] = torch.stack([bw[0], bw[1], zw, (tid + 1).to(pos.dtype)], dim=-1)
+        tid_img = torch.full((n_pix,), -1, dtype=torch.long, device=pos.device).index_copy_(0, pix, tid)
+        depth_img = torch.full((n_pix,), math.inf, dtype=pos.dtype, device=pos.device).index_copy_(0, pix, zw)
+        rast = pos.new_zeros(n_pix, 4).index_copy_(
+            0, pix, torch.stack([bw[0], bw[1], zw, (tid + 1).to(pos.dtype)], dim=-1))
     aa = tb.antialias_core(color, tid_img.reshape(B, H, W), depth_img.reshape(B, H, W), pos, tri)
     depth = tb._scatter_rows(depth_c[:, None], pix, n_pix).reshape(B, H, W)
-    n = n / n.norm(dim=0).clamp_min(1e-12)
+    n = n / (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt().clamp_min(1e-12)  # (3, P): no dim-0 norm
     normals = tb._scatter_rows(n.T, pix, n_pix).reshape(B, H, W, 3)
     return RenderOutput(rgb=aa[..., :3], mask=aa[..., 3], depth=depth, normals=normals,
                         rast=rast.reshape(B, H, W, 4), pos_clip=pos)
