@@ -130,3 +130,66 @@ def test_barycentric_and_texture_backward_match_autograd():
     bw = torch.rand(3, 5, dtype=torch.float64, requires_grad=True)
     idx = torch.randint(0, 10, (3, 5))
     assert torch.autograd.gradcheck(lambda b, a: tb.interp_compact(b, a, idx), (bw, A))
+
+
+@pytest.mark.parametrize("shape", [(8, 6), (16, 16), (5, 1), (1, 4), (33, 17)])
+def test_fast_texture_matches_grid_sample_path(shape):
+    """texture_fast (render_cloth's SoA kernel) = texture_compact (grid_sample per mip level), clamp mode,
+    in value and in gradient to texels and coordinates, for bilinear, trilinear and capped mip levels."""
+    torch.manual_seed(sum(shape))
+    Ht, Wt = shape
+    tex = torch.rand(Ht, Wt, 3, dtype=torch.float64, requires_grad=True)
+    uv = (torch.rand(60, 2, dtype=torch.float64) * 1.2 - 0.1).requires_grad_(True)
+    for scale in (0.0, 0.02, 0.3, 2.0):
+        da = torch.rand(60, 4, dtype=torch.float64) * scale
+        for mml in (None, 1):
+            ref = tb.texture_compact(tex, uv, da if scale else None, "clamp", mml)
+            got = tb.texture_fast(tex, uv[:, 0], uv[:, 1], da.T if scale else None, mml).T
+            w = torch.rand_like(ref)
+            g_ref = torch.autograd.grad((ref * w).sum(), (tex, uv))
+            g_got = torch.autograd.grad((got * w).sum(), (tex, uv))
+            torch.testing.assert_close(got, ref, atol=1e-12, rtol=0)
+            torch.testing.assert_close(g_got[0], g_ref[0], atol=1e-12, rtol=0)
+            torch.testing.assert_close(g_got[1], g_ref[1], atol=1e-10, rtol=0)
+    u = uv.detach()[:7, 0].clone().requires_grad_(True)
+    v = uv.detach()[:7, 1].clone().requires_grad_(True)
+    da = torch.rand(4, 7, dtype=torch.float64) * 0.5
+    assert torch.autograd.gradcheck(lambda t, a, b: tb.texture_fast(t, a, b, da), (tex, u, v))
+
+
+def test_plane_table_matches_barycentrics_and_its_backward_is_exact():
+    torch.manual_seed(1)
+    B, V = 2, 10
+    pos = torch.rand(B, V, 4, dtype=torch.float64)
+    pos[..., 3] += 1.0
+    pos[..., :2] = pos[..., :2] * 2 - 1
+    tri = torch.tensor([[0, 1, 2], [3, 4, 5], [6, 7, 8], [1, 2, 9]])
+    uv = torch.rand(V, 2, dtype=torch.float64)
+    nrm = torch.rand(B, V, 3, dtype=torch.float64)
+    pix = torch.tensor([3, 50, 77, 130, 199])
+    tid = torch.tensor([0, 1, 2, 3, 1])
+    H = W = 10
+    b = pix // (H * W)
+    nx, ny = tb._pixel_ndc(pix, H, W, torch.float64)
+    table = tb.plane_table(pos, tri, uv, nrm)
+    uv_p, depth, n, bw, zw, uv_da = tb.plane_interp(table, b * tri.shape[0] + tid, nx, ny, H, W)
+    bw_ref, zw_ref, db = tb.bary_weights(pos, tri, pix, tid, (H, W), with_db=True)
+    torch.testing.assert_close(bw, bw_ref[:2])
+    torch.testing.assert_close(zw, zw_ref)
+    vid = tb.pixel_vertex_ids(pos, tri, pix, tid, H, W)
+    attr = torch.cat([uv[None].expand(B, V, 2), pos[..., 3:4], nrm], -1).reshape(B * V, 6)
+    ref = tb.interp_compact(bw_ref, attr, vid)
+    torch.testing.assert_close(torch.cat([uv_p, depth[None], n]).T, ref)
+    a = uv[tri[tid]]  # (P, 3, 2): uv_da from the barycentric derivatives
+    d0, d1 = a[:, 0] - a[:, 2], a[:, 1] - a[:, 2]
+    ref_da = torch.stack([d0[:, 0] * db[0] + d1[:, 0] * db[2], d0[:, 0] * db[1] + d1[:, 0] * db[3],
+                          d0[:, 1] * db[0] + d1[:, 1] * db[2], d0[:, 1] * db[1] + d1[:, 1] * db[3]])
+    torch.testing.assert_close(uv_da, ref_da)
+    # the backward (through the table to positions and normals), for every subset of differentiable outputs
+    idx = b * tri.shape[0] + tid
+    p0 = pos.clone().requires_grad_(True)
+    n0 = nrm.clone().requires_grad_(True)
+    for outs in ((0,), (0, 1), (0, 1, 2), (2,)):
+        assert torch.autograd.gradcheck(
+            lambda p, q: tuple(tb.plane_interp(tb.plane_table(p, tri, uv, q), idx, nx, ny, H, W)[k]
+                               for k in outs), (p0, n0))

@@ -774,7 +774,7 @@ class _PlaneFn(torch.autograd.Function):
         for lo, hi, gg in ((1, 3, g_uv), (3, 4, g_depth), (4, 7, g_n)):
             if gg is None:
                 continue
-            torch.mul(gg, inv_s, out=gN[lo:hi])
+            torch.mul(gg.reshape(hi - lo, -1), inv_s, out=gN[lo:hi])
             for k in range(lo, hi):
                 gs.addcmul_(gN[k], vals[k - 1], value=-1.0)
         torch.mul(gN, dx, out=rows[1])
