@@ -72,6 +72,7 @@ def render_cloth(vertices: torch.Tensor, triangles, uvs, texture: torch.Tensor, 
     uv = _as_tensor(uvs, vertices, vertices.dtype)
     tex = texture if isinstance(texture, torch.Tensor) else torch.as_tensor(np.asarray(texture))
     tex = tex.to(device=vertices.device)
+    tex3 = tex if tex.dim() == 3 else tex[0]  # the torch path takes (Ht, Wt, C) as it is (no select backward)
     if tex.dim() == 3:
         tex = tex[None]
     B, V, _ = vertices.shape
@@ -79,7 +80,7 @@ def render_cloth(vertices: torch.Tensor, triangles, uvs, texture: torch.Tensor, 
 
     pos = camera_to_clip(vertices, camera, near=near, far=far)
     if isinstance(R, TorchRasterizer):
-        return _render_cloth_torch(vertices, pos, tri, uv, tex[0], H, W, max_mip_level)
+        return _render_cloth_torch(vertices, pos, tri, uv, tex3, H, W, max_mip_level)
     rast, rast_db = R.rasterize(pos, tri, (H, W), with_db=True)
     uv_tex = torch.stack([uv[:, 0], 1.0 - uv[:, 1]], dim=-1)  # nvdiffrast texture: v → row from the top
     normals_v = vertex_normals(vertices, tri)
@@ -114,7 +115,10 @@ def _render_cloth_torch(vertices, pos, tri, uv, tex, H, W, max_mip_level) -> Ren
             b = torch.div(pix, H * W, rounding_mode="floor")
             row_idx = b * T + tid
             rem = pix - b * (H * W)
-        nx, ny = tb._pixel_ndc(rem, H, W, pos.dtype)
+        prow = torch.div(rem, W, rounding_mode="floor")
+        pcol = rem - prow * W
+        nx = (2.0 * pcol.to(pos.dtype) + 1.0) / W - 1.0
+        ny = (2.0 * prow.to(pos.dtype) + 1.0) / H - 1.0
     uv_tex = torch.stack([uv[:, 0], 1.0 - uv[:, 1]], dim=-1)
     normals_v = vertex_normals(vertices, tri)
     table = tb.plane_table(pos, tri, uv_tex, normals_v)

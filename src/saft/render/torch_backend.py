@@ -806,15 +806,16 @@ def _down2(t: torch.Tensor) -> torch.Tensor:
     return t * (1.0 / (fy * fx)) if fy * fx > 1 else t.clone()
 
 
-def _down2_adjoint(g: torch.Tensor, shape) -> torch.Tensor:
-    """Adjoint of _down2: the gradient of level L (C, h2, w2) spread over level L−1 of `shape`."""
-    C, h, w = shape
+def _down2_adjoint_add_(acc: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
+    """acc += _down2_adjoint(g, acc.shape), in place with strided adds (no upsampled temporary)."""
+    _, h, w = acc.shape
     _, h2, w2 = g.shape
     fy, fx = (2 if h >= 2 else 1), (2 if w >= 2 else 1)
-    up = (g * (1.0 / (fy * fx)))[:, :, None, :, None].expand(C, h2, fy, w2, fx).reshape(C, h2 * fy, w2 * fx)
-    if (h2 * fy, w2 * fx) != (h, w):
-        up = F.pad(up, (0, w - w2 * fx, 0, h - h2 * fy))
-    return up
+    g = g * (1.0 / (fy * fx))
+    for oy in range(fy):
+        for ox in range(fx):
+            acc[:, oy:h2 * fy:fy, ox:w2 * fx:fx] += g
+    return acc
 
 
 def _bilinear_taps(u: torch.Tensor, v: torch.Tensor, h: int, w: int):
@@ -932,15 +933,13 @@ class _TexFn(torch.autograd.Function):
                         gv.index_add_(0, sel, d)
         g_tex = None
         if need_tex:
-            acc = None
-            for level in range(len(shapes) - 1, 0, -1):
-                if g_lvl[level] is not None:
-                    acc = g_lvl[level] if acc is None else acc + g_lvl[level]
-                if acc is not None:
-                    acc = _down2_adjoint(acc, shapes[level - 1])
-            g_tex = g_lvl[0] if acc is None else (acc if g_lvl[0] is None else acc + g_lvl[0])
-            if g_tex is None:
-                g_tex = g.new_zeros(shapes[0])
+            for level in range(len(shapes) - 1, 0, -1):  # coarse to fine: add each level's adjoint
+                if g_lvl[level] is None:
+                    continue
+                if g_lvl[level - 1] is None:
+                    g_lvl[level - 1] = g.new_zeros(shapes[level - 1])
+                _down2_adjoint_add_(g_lvl[level - 1], g_lvl[level])
+            g_tex = g_lvl[0] if g_lvl[0] is not None else g.new_zeros(shapes[0])
             g_tex = g_tex.permute(1, 2, 0)
         return g_tex, gu, gv, None, None, None
 
