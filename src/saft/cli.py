@@ -49,13 +49,12 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def _load_config(args: argparse.Namespace):
-    from saft.config_io import load_config
-    from saft.reconstruct import SaftConfig
+    from saft.reconstruct.config import load_saft_config
 
     overrides = list(args.set or [])
     if getattr(args, "device", None):
         overrides.append(f'run.device="{args.device}"')
-    return load_config(SaftConfig, args.config, overrides)
+    return load_saft_config(args.config, overrides)
 
 
 def cmd_reconstruct(args: argparse.Namespace) -> int:

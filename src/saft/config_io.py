@@ -35,8 +35,8 @@ def to_toml(cfg) -> str:
     return tomli_w.dumps(to_dict(cfg))
 
 
-def from_dict(cls: type[T], data: dict, where: str = "config", prefix: str = "") -> T:
-    """Build `cls` from a (partial) nested dict; missing keys take the defaults."""
+def from_dict(cls: type[T], data: dict, where: str = "config", prefix: str = "", base=None) -> T:
+    """Build `cls` from a (partial) nested dict; missing keys keep the values of `base` (default: cls())."""
     if not isinstance(data, dict):
         raise SaftInputError(where, f"section {prefix.rstrip('.') or '<top>'} must be a table")
     hints = typing.get_type_hints(cls)
@@ -45,10 +45,14 @@ def from_dict(cls: type[T], data: dict, where: str = "config", prefix: str = "")
     if unknown:
         key = prefix + unknown[0]
         raise SaftInputError(where, f"unknown config key {key!r} (known here: {', '.join(sorted(fields))})")
+    base = cls() if base is None else base
     kwargs = {}
     for name, value in data.items():
-        kwargs[name] = _convert(hints[name], value, where, prefix + name)
-    base = cls()
+        if dataclasses.is_dataclass(hints[name]):
+            # a nested section starts from the parent's default for it, not from its class defaults
+            kwargs[name] = from_dict(hints[name], value, where, prefix + name + ".", getattr(base, name))
+        else:
+            kwargs[name] = _convert(hints[name], value, where, prefix + name)
     return dataclasses.replace(base, **kwargs)
 
 

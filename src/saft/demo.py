@@ -6,7 +6,6 @@ import logging
 import time
 from pathlib import Path
 
-from saft.config_io import load_config
 
 log = logging.getLogger("saft")
 
@@ -18,7 +17,7 @@ def run_demo(out: str | Path, quiet: bool = False, device: str = "auto", overrid
              spec=None) -> dict:
     from saft.evaluate import evaluate_result_dir, evaluate_static_template, format_comparison_table, \
         ground_truth_spec_for
-    from saft.reconstruct import SaftConfig, reconstruct
+    from saft.reconstruct import reconstruct
     from saft.scene import load_scene
     from saft.scene.synthetic import HangingClothSpec, write_hanging_cloth
 
@@ -29,7 +28,9 @@ def run_demo(out: str | Path, quiet: bool = False, device: str = "auto", overrid
         log.info("making the synthetic scene in %s", scene_dir)
         write_hanging_cloth(scene_dir, spec or HangingClothSpec())
     scene = load_scene(scene_dir)
-    cfg = load_config(SaftConfig, None, DEMO_OVERRIDES + [f'run.device="{device}"'] + list(overrides or []))
+    from saft.reconstruct.config import load_saft_config
+
+    cfg = load_saft_config(None, DEMO_OVERRIDES + [f'run.device="{device}"'] + list(overrides or []))
     from saft.reconstruct.checkpoint import checkpoint_path
 
     reconstruct(scene, cfg, out, resume=checkpoint_path(out).is_file(), quiet=quiet)

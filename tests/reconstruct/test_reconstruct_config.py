@@ -51,3 +51,13 @@ def test_bad_config_file_names_the_file(tmp_path, capsys, native_scene):
 def test_section_must_be_a_table():
     with pytest.raises(SaftInputError, match="section shape must be a table"):
         from_dict(SaftConfig, {"shape": 3})
+
+
+def test_appearance_profile_resolves_to_cpu_with_user_values_on_top():
+    from saft.reconstruct.config import load_saft_config
+
+    c = load_saft_config(None, ['run.device="cpu"', "appearance.epochs=7"])
+    assert c.appearance.profile == "cpu" and c.appearance.epochs == 7
+    assert c.appearance.frames_per_epoch > 0 and c.appearance.image_scale < 1   # from the CPU profile
+    with pytest.raises(SaftInputError, match="appearance.maps"):
+        load_saft_config(None, ['run.device="cpu"', 'appearance.maps="pixels"'])

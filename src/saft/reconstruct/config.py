@@ -9,7 +9,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Literal
+
+from saft.appearance.config import AppearanceConfig, cpu_profile
 
 
 @dataclass
@@ -77,20 +80,15 @@ class ShapeConfig:
 
 
 @dataclass
-class AppearanceSection:
-    """Phase 3 switch; the phase's own hyperparameters live in saft.appearance."""
-
-    enabled: bool = True
-
-
-@dataclass
 class SaftConfig:
     run: RunConfig = field(default_factory=RunConfig)
     render: RenderConfig = field(default_factory=RenderConfig)
     texture: TextureConfig = field(default_factory=TextureConfig)
     physics: PhysicsConfig = field(default_factory=PhysicsConfig)
     shape: ShapeConfig = field(default_factory=ShapeConfig)
-    appearance: AppearanceSection = field(default_factory=AppearanceSection)
+    # Phase 3 (saft.appearance). profile "auto": the paper's settings on CUDA, the measured CPU profile
+    # (fewer epochs, frame mini-batches, lower resolution) on CPU; explicit values override either.
+    appearance: AppearanceConfig = field(default_factory=lambda: AppearanceConfig(profile="auto"))
 
 
 def shape_schedule(num_frames: int, cfg: ShapeConfig) -> list[int]:
@@ -99,3 +97,29 @@ def shape_schedule(num_frames: int, cfg: ShapeConfig) -> list[int]:
     grow = (num_frames - first) * cfg.add_frame_every
     frames = [min(num_frames, first + e // cfg.add_frame_every) for e in range(grow)]
     return frames + [num_frames] * cfg.final_epochs
+
+
+def load_saft_config(path: str | Path | None = None, overrides: list[str] | None = None) -> SaftConfig:
+    """Defaults ← TOML file ← `--set` overrides, checked strictly; the appearance profile resolved.
+
+    With appearance.profile = "auto", the appearance section starts from the CPU profile when the run
+    will be on the CPU (else from the paper's settings) and the user's explicit appearance values are
+    applied on top; the saved config.toml then names the profile it used ("cpu" or "paper").
+    """
+    from saft.config_io import from_dict, load_toml, merge_overrides, to_dict
+
+    data = load_toml(path) if path else {}
+    where = str(path) if path else "config"
+    if overrides:
+        data = merge_overrides(data, overrides)
+        where = f"{path} + --set" if path else "--set"
+    cfg = from_dict(SaftConfig, data, where)
+    if cfg.appearance.profile == "auto":
+        from saft.reconstruct.pipeline import resolve_device
+
+        on_cpu = resolve_device(cfg.run.device).type == "cpu"
+        base = cpu_profile(AppearanceConfig()) if on_cpu else AppearanceConfig(profile="paper")
+        user = {k: v for k, v in data.get("appearance", {}).items() if k != "profile"}
+        cfg.appearance = from_dict(AppearanceConfig, {**to_dict(base), **user}, where, "appearance.")
+    cfg.appearance.validate()
+    return cfg
