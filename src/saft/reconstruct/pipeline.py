@@ -71,6 +71,12 @@ def reconstruct(scene: Scene, cfg: SaftConfig, out_dir: str | Path, *, resume: b
     """
     out_dir = Path(out_dir)
     device = resolve_device(cfg.run.device)
+    if cfg.appearance.profile == "auto":   # programmatic use; the CLI resolves it in load_saft_config
+        from dataclasses import replace
+
+        from saft.appearance import profile_for_device
+
+        cfg = replace(cfg, appearance=profile_for_device(device, replace(cfg.appearance, profile="paper")))
     torch.set_num_threads(cpu_threads(cfg.run.threads))
     torch.manual_seed(cfg.run.seed)
     np.random.seed(cfg.run.seed)
@@ -169,18 +175,52 @@ def reconstruct(scene: Scene, cfg: SaftConfig, out_dir: str | Path, *, resume: b
 
     positions = state["positions"]
     params = shape_params_summary(state["shape_state"]["params"], cfg, scene)
+    from saft.io_utils import atomic_write_json
     from saft.reconstruct.outputs import write_shape_outputs
 
-    t0 = time.perf_counter()
-    write_shape_outputs(out_dir, scene, camera, positions.numpy(), texture, state["shape_state"]["params"],
-                        params, ctx)
-    timings["outputs"] = time.perf_counter() - t0
-    epoch_log.write(out_dir / "log.csv")
-    from saft.io_utils import atomic_write_json
+    if state["phase"] == "outputs":
+        t0 = time.perf_counter()
+        write_shape_outputs(out_dir, scene, camera, positions.numpy(), texture, state["shape_state"]["params"],
+                            params, ctx)
+        timings["outputs"] = time.perf_counter() - t0
+        epoch_log.write(out_dir / "log.csv")
+        atomic_write_json(out_dir / "timings.json", timings)
+        state["phase"] = "appearance" if cfg.appearance.enabled else "done"
+        write_checkpoint()
 
-    atomic_write_json(out_dir / "timings.json", timings)
-    state["phase"] = "done"
-    write_checkpoint()
+    # ---------------------------------------------------------------- phase 3: appearance
+    if state["phase"] == "appearance":
+        from saft.reconstruct.appearance_outputs import run_appearance_phase, write_appearance_renders
+
+        t0 = time.perf_counter()
+
+        def appearance_checkpoint(app_state: dict) -> None:
+            state["appearance_state"] = app_state
+            write_checkpoint()
+
+        def check_interrupt() -> None:
+            if guard.requested:
+                raise Interrupted("interrupted in phase appearance; continue with --resume "
+                                  f"(checkpoint in {out_dir / 'checkpoint'})")
+
+        with guard.active():
+            try:
+                result = run_appearance_phase(
+                    out_dir, positions.numpy(), scene.template.triangles, scene.template.uvs, camera, rgb, mask,
+                    cfg.appearance, device, progress, state.get("appearance_state"), appearance_checkpoint,
+                    check_interrupt, epoch_log)
+            except Interrupted as exc:
+                progress.end_phase()
+                epoch_log.write(out_dir / "log.csv")
+                raise KeyboardInterrupt(str(exc)) from None
+        write_appearance_renders(out_dir, result, positions.numpy(), scene.template.triangles, scene.template.uvs,
+                                 camera, rgb, device)
+        timings["appearance"] = timings.get("appearance", 0.0) + time.perf_counter() - t0
+        state.pop("appearance_state", None)
+        state["phase"] = "done"
+        epoch_log.write(out_dir / "log.csv")
+        atomic_write_json(out_dir / "timings.json", timings)
+        write_checkpoint()
     return RunOutcome(out_dir, positions.numpy(), texture.cpu().numpy(), params, timings)
 
 

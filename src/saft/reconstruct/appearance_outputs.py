@@ -1,0 +1,63 @@
+"""Phase 3 inside a run: fit the appearance on the frozen motion and write material/ (saft.appearance)."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from saft.io_utils import write_image
+
+log = logging.getLogger("saft")
+
+NOVEL_VIEW_ANGLE = 45.0  # degrees around the vertical axis through the cloth (the paper's novel view)
+
+
+def run_appearance_phase(out_dir: Path, positions: np.ndarray, triangles: np.ndarray, uvs: np.ndarray, camera,
+                         target_rgb: np.ndarray, target_mask: np.ndarray, cfg, device, progress,
+                         resume_state: dict | None, checkpoint: Callable[[dict], None],
+                         check_interrupt: Callable[[], None], epoch_log=None):
+    from saft.appearance import fit_appearance, save_appearance
+
+    log.info("appearance: profile %s, %d epochs, %s maps, image scale %g, %s frames per epoch",
+             cfg.profile, cfg.epochs, cfg.maps, cfg.image_scale, cfg.frames_per_epoch or "all")
+    start = int(resume_state["epoch"]) if resume_state else 0
+    progress.start_phase("appearance", cfg.epochs, start)
+
+    import time
+
+    last = [time.perf_counter()]
+
+    def on_progress(epoch: int, epochs: int, loss: float) -> None:
+        progress.update(epoch, len(positions), loss)
+        if epoch_log is not None:
+            now = time.perf_counter()
+            epoch_log.add(phase="appearance", epoch=epoch, frames=cfg.frames_per_epoch or len(positions),
+                          loss=float(loss), image=float(loss), seconds=now - last[0])
+            last[0] = now
+        check_interrupt()
+
+    result = fit_appearance(positions, triangles, uvs, camera, target_rgb, target_mask, config=cfg, device=device,
+                            progress=on_progress, resume_state=resume_state, checkpoint=checkpoint)
+    progress.end_phase()
+    save_appearance(result, out_dir)
+    return result
+
+
+def write_appearance_renders(out_dir: Path, result, positions: np.ndarray, triangles, uvs, camera, target_rgb,
+                             device) -> None:
+    """material/renders/frame_XXX.png (re-render | target) and material/novel_view/frame_XXX.png (45°)."""
+    from saft.appearance import orbit_camera, render_appearance
+
+    mat = Path(out_dir) / "material"
+    renders = render_appearance(result, positions, triangles, uvs, camera, device=device)
+    for i, img in enumerate(renders):
+        write_image(mat / "renders" / f"frame_{i:03d}.png", np.concatenate([img, target_rgb[i]], axis=1))
+    center = positions[0].mean(axis=0)
+    novel = orbit_camera(camera, center, NOVEL_VIEW_ANGLE)
+    views = render_appearance(result, positions, triangles, uvs, novel, device=device)
+    for i, img in enumerate(views):
+        write_image(mat / "novel_view" / f"frame_{i:03d}.png", img)
+    write_image(mat / "novel_view.png", views[0])
