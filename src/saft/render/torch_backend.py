@@ -50,38 +50,54 @@ def _check_pos_tri(pos: torch.Tensor, tri: torch.Tensor):
 @torch.no_grad()
 def visibility(pos: torch.Tensor, tri: torch.Tensor, resolution: tuple[int, int]):
     """Discrete part of rasterization: (pix, tid), the flat index b·H·W + row·W + col of every covered
-    pixel (ascending) and the index of the triangle seen there. No autograd."""
+    pixel (ascending) and the index of the triangle seen there. No autograd.
+
+    Structure-of-arrays throughout (per-vertex / per-edge quantities are separate contiguous rows, the
+    three-way minima and maxima explicit, gathers by index_select): small-dimension reductions and
+    advanced indexing are several times slower on CPU."""
     pos, tri = _check_pos_tri(pos, tri)
     H, W = int(resolution[0]), int(resolution[1])
     B, V, _ = pos.shape
     T = tri.shape[0]
     dev = pos.device
-    p = pos.detach()[:, tri]  # (B, T, 3, 4)
-    w = p[..., 3]
-    ok = (w > _W_EPS).all(-1)
-    w = torch.where(w > _W_EPS, w, torch.ones_like(w))
-    x = (p[..., 0] / w + 1.0) * (0.5 * W) - 0.5  # pixel units, centre of column j at x = j
-    y = (p[..., 1] / w + 1.0) * (0.5 * H) - 0.5
-    z = p[..., 2] / w
+    g = pos.detach().permute(2, 0, 1).index_select(2, tri.T.reshape(-1)).reshape(4, B, 3, T)
+    w = g[3]  # (B, 3 vertices, T)
+    okw = w > _W_EPS
+    ok = okw[:, 0] & okw[:, 1] & okw[:, 2]
+    w = torch.where(okw, w, torch.ones_like(w))
+    x = (g[0] / w + 1.0) * (0.5 * W) - 0.5  # pixel units, centre of column j at x = j
+    y = (g[1] / w + 1.0) * (0.5 * H) - 0.5
+    z = g[2] / w
     # edge function k (opposite vertex k, from vertex k+1 to k+2): e_k = A x + B y + C, e_k(vertex k) = 2·area
-    xi, yi = x.roll(-1, -1), y.roll(-1, -1)
-    xj, yj = x.roll(-2, -1), y.roll(-2, -1)
+    xi, yi = x.roll(-1, 1), y.roll(-1, 1)
+    xj, yj = x.roll(-2, 1), y.roll(-2, 1)
     A = yi - yj
     Bc = xj - xi
     C = -(A * xi + Bc * yi)
-    area2 = A[..., 0] * x[..., 0] + Bc[..., 0] * y[..., 0] + C[..., 0]
+    area2 = A[:, 0] * x[:, 0] + Bc[:, 0] * y[:, 0] + C[:, 0]
     ok &= area2.abs() > 1e-12
-    ok &= ~((z < -1).all(-1) | (z > 1).all(-1))
-    s = torch.where(area2 < 0, -1.0, 1.0).to(x.dtype)
-    A, Bc, C = A * s[..., None], Bc * s[..., None], C * s[..., None]
+    zlo, zhi = z < -1, z > 1
+    ok &= ~((zlo[:, 0] & zlo[:, 1] & zlo[:, 2]) | (zhi[:, 0] & zhi[:, 1] & zhi[:, 2]))
+    s = torch.where(area2 < 0, -1.0, 1.0).to(x.dtype)[:, None]
+    A, Bc, C = A * s, Bc * s, C * s
     inv_area = 1.0 / area2.abs().clamp_min(1e-30)
-    zA = (A * z).sum(-1) * inv_area  # z/w is affine in screen space
-    zB = (Bc * z).sum(-1) * inv_area
-    zC = (C * z).sum(-1) * inv_area
-    ymin = torch.ceil(y.amin(-1) - _EDGE_EPS).clamp(min=0)
-    ymax = torch.floor(y.amax(-1) + _EDGE_EPS).clamp(max=H - 1)
-    xmin = torch.ceil(x.amin(-1) - _EDGE_EPS).clamp(min=0)
-    xmax = torch.floor(x.amax(-1) + _EDGE_EPS).clamp(max=W - 1)
+
+    def sum3(t):
+        return t[:, 0] + t[:, 1] + t[:, 2]
+
+    def min3(t):
+        return torch.minimum(torch.minimum(t[:, 0], t[:, 1]), t[:, 2])
+
+    def max3(t):
+        return torch.maximum(torch.maximum(t[:, 0], t[:, 1]), t[:, 2])
+
+    zA = sum3(A * z) * inv_area  # z/w is affine in screen space
+    zB = sum3(Bc * z) * inv_area
+    zC = sum3(C * z) * inv_area
+    ymin = torch.ceil(min3(y) - _EDGE_EPS).clamp(min=0)
+    ymax = torch.floor(max3(y) + _EDGE_EPS).clamp(max=H - 1)
+    xmin = torch.ceil(min3(x) - _EDGE_EPS).clamp(min=0)
+    xmax = torch.floor(max3(x) + _EDGE_EPS).clamp(max=W - 1)
     nrows = (ymax - ymin + 1).clamp(min=0)
     nrows = torch.where(ok & (xmax >= xmin), nrows, torch.zeros_like(nrows)).long().reshape(-1)
 
@@ -89,40 +105,51 @@ def visibility(pos: torch.Tensor, tri: torch.Tensor, resolution: tuple[int, int]
     if inst.numel() == 0:
         e = torch.zeros(0, dtype=torch.int64, device=dev)
         return e, e
-    cnt = nrows[inst]
+    cnt = nrows.index_select(0, inst)
     R = int(cnt.sum())
     pair_inst = torch.repeat_interleave(inst, cnt, output_size=R)
     start = torch.cumsum(cnt, 0) - cnt
-    row = ymin.reshape(-1)[pair_inst] + (
+    row = ymin.reshape(-1).index_select(0, pair_inst) + (
         torch.arange(R, device=dev) - torch.repeat_interleave(start, cnt, output_size=R)).to(x.dtype)
-    Ai, Bi, Ci = A.reshape(-1, 3)[pair_inst], Bc.reshape(-1, 3)[pair_inst], C.reshape(-1, 3)[pair_inst]
-    num = -(Bi * row[:, None] + Ci)  # inside ⇔ A x ≥ num for all three edges
+
+    def per_row(t):  # (B, 3, T) → (3, R)
+        return t.permute(1, 0, 2).reshape(3, B * T).index_select(1, pair_inst)
+
+    Ai, Bi, Ci = per_row(A), per_row(Bc), per_row(C)
+    num = -(Bi * row + Ci)  # inside ⇔ A x ≥ num for all three edges
     safeA = torch.where(Ai == 0, torch.ones_like(Ai), Ai)
     bound = num / safeA
     inf = torch.full_like(bound, math.inf)
-    lo = torch.where(Ai > 0, bound, -inf).amax(-1)
-    hi = torch.where(Ai < 0, bound, inf).amin(-1)
-    flat_bad = ((Ai == 0) & (num > _EDGE_EPS * Bi.abs())).any(-1)
+    lo_k = torch.where(Ai > 0, bound, -inf)
+    hi_k = torch.where(Ai < 0, bound, inf)
+    lo = torch.maximum(torch.maximum(lo_k[0], lo_k[1]), lo_k[2])
+    hi = torch.minimum(torch.minimum(hi_k[0], hi_k[1]), hi_k[2])
+    bad = (Ai == 0) & (num > _EDGE_EPS * Bi.abs())
+    flat_bad = bad[0] | bad[1] | bad[2]
     xl = torch.ceil(lo - _EDGE_EPS).clamp(min=0)
     xr = torch.floor(hi + _EDGE_EPS).clamp(max=W - 1)
     span = (xr - xl + 1).clamp(min=0)
     span = torch.where(flat_bad, torch.zeros_like(span), span).long()
     keep = torch.nonzero(span > 0).squeeze(1)
-    span, xl, row, pair_inst = span[keep], xl[keep], row[keep], pair_inst[keep]
+    span, xl, row, pair_inst = (t.index_select(0, keep) for t in (span, xl, row, pair_inst))
     N = int(span.sum())
     if N == 0:
         e = torch.zeros(0, dtype=torch.int64, device=dev)
         return e, e
     pair = torch.repeat_interleave(torch.arange(span.numel(), device=dev), span, output_size=N)
     pstart = torch.cumsum(span, 0) - span
-    local = torch.arange(N, device=dev) - pstart[pair]
-    inst_p = pair_inst[pair]
-    px = xl.long()[pair] + local
-    zrow = zB.reshape(-1)[pair_inst] * row + zC.reshape(-1)[pair_inst]
-    zpix = zrow[pair] + zA.reshape(-1)[inst_p] * px.to(x.dtype)
-    b = inst_p // T
-    tid = inst_p - b * T
-    pix = (b * H + row.long()[pair]) * W + px
+    # column of each candidate: xl of its span plus its offset in the span
+    px = torch.arange(N, device=dev) + (xl.long() - pstart).index_select(0, pair)
+    inst_p = pair_inst.index_select(0, pair)
+    zrow = zB.reshape(-1).index_select(0, pair_inst) * row + zC.reshape(-1).index_select(0, pair_inst)
+    zpix = zrow.index_select(0, pair) + zA.reshape(-1).index_select(0, inst_p) * px.to(x.dtype)
+    if B == 1:
+        tid = inst_p
+        pix = (row.long() * W).index_select(0, pair) + px
+    else:
+        b = torch.div(inst_p, T, rounding_mode="floor")
+        tid = inst_p - b * T
+        pix = ((b * H) * W + (row.long() * W).index_select(0, pair)) + px
     inside = (zpix >= -1.0) & (zpix <= 1.0)
     q = ((zpix.clamp(-1.0, 1.0) + 1.0) * float(2 ** 29)).long()  # 31 bits of depth
     key = (q << 32) | tid
@@ -131,7 +158,7 @@ def visibility(pos: torch.Tensor, tri: torch.Tensor, resolution: tuple[int, int]
     zbuf = torch.full((B * H * W,), _INT64_MAX, dtype=torch.int64, device=dev)
     zbuf.scatter_reduce_(0, pix, key, reduce="amin", include_self=True)
     pix_out = torch.nonzero(zbuf != _INT64_MAX).squeeze(1)
-    tid_out = zbuf[pix_out] & 0xFFFFFFFF
+    tid_out = zbuf.index_select(0, pix_out) & 0xFFFFFFFF
     return pix_out, tid_out
 
 
