@@ -193,3 +193,26 @@ def test_plane_table_matches_barycentrics_and_its_backward_is_exact():
         assert torch.autograd.gradcheck(
             lambda p, q: tuple(tb.plane_interp(tb.plane_table(p, tri, uv, q), idx, nx, ny, H, W)[k]
                                for k in outs), (p0, n0))
+
+
+def test_antialias_blend_backward_is_exact():
+    """The antialias blend's hand-written backward (to the colours and to the crossing offsets f, through
+    which the silhouette gradients reach the positions) by gradcheck, targets repeating across the two
+    axes as they can; and the whole antialias against gradcheck with respect to the colours."""
+    from saft.render import antialias, camera_to_clip, rasterize
+    g = torch.Generator().manual_seed(0)
+    color = torch.rand(30, 3, dtype=torch.float64, generator=g).requires_grad_(True)
+    f = (torch.rand(12, dtype=torch.float64, generator=g) - 0.5).requires_grad_(True)
+    pf = torch.randint(0, 30, (12,), generator=g)
+    po = (pf + 1) % 30
+    target = torch.where(f.detach() > 0, po, pf)
+    target[6:] = target[:6]  # repeated targets
+    assert torch.autograd.gradcheck(lambda c, x: tb._AABlendFn.apply(c, x, pf, po, target), (color, f))
+    verts, tris, _, _ = folded_sheet()
+    cam = pinhole(16, 14, 20.0)
+    tri = torch.tensor(tris)
+    pos = camera_to_clip(torch.tensor(verts)[None], cam).detach()
+    rast = rasterize(pos, tri, (cam.height, cam.width))
+    img = torch.rand(1, cam.height, cam.width, 2, dtype=torch.float64, generator=g)
+    assert not torch.equal(antialias(img, rast, pos, tri), img)
+    assert torch.autograd.gradcheck(lambda c: antialias(c, rast, pos, tri), (img.requires_grad_(True),))

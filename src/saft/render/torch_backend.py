@@ -517,13 +517,13 @@ def _antialias_impl(color, tid_img, depth_img, pos, tri):
                 a_idx = torch.nonzero(diff.reshape(-1)).squeeze(1)
                 pa = a_idx + torch.div(a_idx, (H - 1) * W, rounding_mode="floor") * W
                 pb = pa + W
-            a_front = dflat[pa] <= dflat[pb]
+            a_front = dflat.index_select(0, pa) <= dflat.index_select(0, pb)
             pf = torch.where(a_front, pa, pb)  # the nearer pixel
             po = torch.where(a_front, pb, pa)
-            t_f = tflat[pf]
+            t_f = tflat.index_select(0, pf)
             bf = torch.div(pf, H * W, rounding_mode="floor")
-            keep = torch.nonzero(tri_sil[bf * T + t_f]).squeeze(1)  # only triangles with a silhouette edge
-            pf, po, t_f, bf = pf[keep], po[keep], t_f[keep], bf[keep]
+            keep = torch.nonzero(tri_sil.index_select(0, bf * T + t_f)).squeeze(1)  # triangles with a silhouette edge
+            pf, po, t_f, bf = (t.index_select(0, keep) for t in (pf, po, t_f, bf))
             v0 = tri[t_f]  # (N, 3)
             v1 = v0.roll(-1, -1)
             gv0 = v0 + (bf * V)[:, None]
@@ -552,21 +552,52 @@ def _antialias_impl(color, tid_img, depth_img, pos, tri):
                 pairs.append((axis, pf[sel], po[sel], gv0[sel, ks], gv1[sel, ks], fi[sel], fj[sel], sgn[sel]))
     if not pairs:
         return color
-    out = color.reshape(-1, C)
     posf = pos.reshape(-1, 4)
-    targets, deltas = [], []
+    fs, pfs, pos_, tgts = [], [], [], []
     for axis, pf, po, e0, e1, fi, fj, sgn in pairs:
-        xe0, ye0 = _screen_xy(posf[e0], H, W)
-        xe1, ye1 = _screen_xy(posf[e1], H, W)
+        xe0, ye0 = _screen_xy(posf.index_select(0, e0), H, W)
+        xe1, ye1 = _screen_xy(posf.index_select(0, e1), H, W)
         if axis == 0:
             tt = (xe0 + (fi - ye0) / (ye1 - ye0) * (xe1 - xe0) - fj) * sgn
         else:
             tt = (ye0 + (fj - xe0) / (xe1 - xe0) * (ye1 - ye0) - fi) * sgn
         f = tt - 0.5  # > 0: the front triangle reaches into the other pixel; < 0: it leaves part of its own
-        cf, co = out[pf], out[po]
-        targets.append(torch.where(f.detach() > 0, po, pf))
-        deltas.append(f[:, None].to(color.dtype) * (cf - co))
-    return out.index_add(0, torch.cat(targets), torch.cat(deltas)).reshape(B, H, W, C)
+        fs.append(f)
+        pfs.append(pf)
+        pos_.append(po)
+        tgts.append(torch.where(f.detach() > 0, po, pf))
+    out = _AABlendFn.apply(color.reshape(-1, C), torch.cat(fs).to(color.dtype), torch.cat(pfs),
+                           torch.cat(pos_), torch.cat(tgts))
+    return out.reshape(B, H, W, C)
+
+
+class _AABlendFn(torch.autograd.Function):
+    """out = color; out[target] += f · (color[pf] − color[po]) (targets unique per axis, may repeat across
+    the two axes), with a backward that touches only the blended rows (autograd of the indexing would
+    build dense zero images per gather)."""
+
+    @staticmethod
+    def forward(ctx, color, f, pf, po, target):
+        d = color.index_select(0, pf) - color.index_select(0, po)  # (K, C)
+        out = color.clone().index_add_(0, target, d * f[:, None])
+        ctx.save_for_backward(f, pf, po, target, d)
+        return out
+
+    @staticmethod
+    def backward(ctx, g):
+        f, pf, po, target, d = ctx.saved_tensors
+        g_t = g.index_select(0, target)  # (K, C)
+        g_f = None
+        if ctx.needs_input_grad[1]:
+            prod = g_t * d
+            g_f = prod[:, 0]
+            for c in range(1, prod.shape[1]):
+                g_f = g_f + prod[:, c]
+        g_color = None
+        if ctx.needs_input_grad[0]:
+            gd = g_t * f[:, None]
+            g_color = g.clone().index_add_(0, pf, gd).index_add_(0, po, gd, alpha=-1)
+        return g_color, g_f, None, None, None
 
 
 class TorchRasterizer:
