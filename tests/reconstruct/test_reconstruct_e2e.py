@@ -101,3 +101,22 @@ def test_same_seed_same_result_on_cpu(tiny_scene, tmp_path):
     r1 = reconstruct(scene, cfg, tmp_path / "a", quiet=True)
     r2 = reconstruct(scene, cfg, tmp_path / "b", quiet=True)
     assert np.array_equal(r1.positions, r2.positions)
+
+
+def test_phase3_runs_inside_reconstruct_and_writes_material(tiny_scene, tmp_path):
+    scene = tiny_scene.with_frames(3)
+    from saft.reconstruct.config import load_saft_config
+
+    cfg = load_saft_config(None, TINY_CONFIG[:-1] + ["texture.epochs=3", "shape.final_epochs=2",
+                                                     "appearance.epochs=3", "appearance.render_spp=4",
+                                                     "appearance.frames_per_epoch=2"])
+    assert cfg.appearance.profile == "cpu"
+    reconstruct(scene, cfg, tmp_path, quiet=True)
+    mat = tmp_path / "material"
+    for name in ("diffuse.png", "roughness.png", "metallic.png", "envmap.exr", "envmap.png", "novel_view.png"):
+        assert (mat / name).is_file(), name
+    assert len(list((mat / "renders").glob("frame_*.png"))) == 3
+    assert len(list((mat / "novel_view").glob("frame_*.png"))) == 3
+    rows = read_result(tmp_path).log_rows
+    assert sum(r["phase"] == "appearance" for r in rows) == 3
+    assert 'profile = "cpu"' in (tmp_path / "config.toml").read_text()
