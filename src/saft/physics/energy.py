@@ -147,6 +147,15 @@ class ElementEval:
         spring_blocks = torch.stack([Ks, -Ks, -Ks, Ks])  # (4, 3, 3, E)
         g1, g2 = self.g1, self.g2
         a = self.phi_qq
+        out = torch.zeros(t.nnz, dtype=us.dtype, device=us.device)
+        out.index_add_(0, t.spring_idx, spring_blocks.reshape(-1))
+        if self.mode == "projected":
+            # Gauss-Newton hinge Hessian a * G G^T with G = (-g1, g1 - g2, g2) (rows n1, v, n2): one
+            # outer product in (vertex r, dim i, vertex c, dim j, hinge) order, scattered with the matching
+            # permutation of hinge_idx
+            G = torch.stack([-g1, g1 - g2, g2])  # (3, 3, H)
+            vals = (a * G)[:, :, None, None, :] * G[None, None, :, :, :]
+            return out.index_add_(0, t.hinge_idx_outer, vals.reshape(-1))
         H11 = a * _outer(g1, g1)
         H12 = a * _outer(g1, g2)
         H22 = a * _outer(g2, g2)
@@ -168,10 +177,7 @@ class ElementEval:
         hinge_blocks = torch.stack(
             [H11, n1v, -H12, n1v.transpose(0, 1), vv, vn2, -H21, vn2.transpose(0, 1), H22]
         )  # (9, 3, 3, H)
-        vals = torch.cat([spring_blocks.reshape(-1), hinge_blocks.reshape(-1)])
-        idx = torch.cat([t.spring_idx, t.hinge_idx])
-        out = torch.zeros(t.nnz, dtype=vals.dtype, device=vals.device)
-        return out.index_add_(0, idx, vals)
+        return out.index_add_(0, t.hinge_idx, hinge_blocks.reshape(-1))
 
     # ------------------------------------------------------------------ adjoint helpers
     def _to_e(self, wT):

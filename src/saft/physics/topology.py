@@ -52,6 +52,14 @@ class ClothTopology:
     diag_idx: torch.Tensor = field(repr=False)
     scatter_idx: torch.Tensor = field(repr=False)
     template: torch.Tensor = field(repr=False)
+    hinge_idx_outer: torch.Tensor = field(repr=False, default=None)
+
+    def __post_init__(self):
+        if self.hinge_idx_outer is None:
+            # hinge_idx reordered (vertex r, dim i, vertex c, dim j, hinge) for outer-product kernels
+            H = self.hinge_idx.numel() // 81
+            perm = self.hinge_idx.view(3, 3, 3, 3, H).permute(0, 2, 1, 3, 4).reshape(-1)
+            object.__setattr__(self, "hinge_idx_outer", perm)
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -139,7 +147,8 @@ class ClothTopology:
     def to(self, device=None, dtype: torch.dtype | None = None) -> "ClothTopology":
         """A copy with every tensor on ``device`` and floating tensors in ``dtype``."""
         changes = {}
-        for name in ("edges", "hinges", "is_bend", "spring_idx", "hinge_idx", "diag_idx", "scatter_idx"):
+        for name in ("edges", "hinges", "is_bend", "spring_idx", "hinge_idx", "diag_idx", "scatter_idx",
+                     "hinge_idx_outer"):
             changes[name] = getattr(self, name).to(device=device)
         for name in ("rest_len", "rest_angle", "bend_w", "mass", "template"):
             changes[name] = getattr(self, name).to(device=device, dtype=dtype)
