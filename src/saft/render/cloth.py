@@ -131,9 +131,10 @@ def _render_cloth_torch(vertices, pos, tri, uv, tex, H, W, max_mip_level) -> Ren
         depth_img = torch.full((n_pix,), math.inf, dtype=pos.dtype, device=pos.device).index_copy_(0, pix, zw)
         rast = pos.new_zeros(n_pix, 4).index_copy_(
             0, pix, torch.stack([bw[0], bw[1], zw, (tid + 1).to(pos.dtype)], dim=-1))
-    aa = tb.antialias_core(color, tid_img.reshape(B, H, W), depth_img.reshape(B, H, W), pos, tri)
-    depth = tb._scatter_rows(depth_c[:, None], pix, n_pix).reshape(B, H, W)
+    rgb, mask = tb.antialias_core(color, tid_img.reshape(B, H, W), depth_img.reshape(B, H, W), pos, tri,
+                                  split=True)
+    depth = tb._scatter_rows(depth_c, pix, n_pix).reshape(B, H, W)
     n = n / (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt().clamp_min(1e-12)  # (3, P): no dim-0 norm
     normals = tb._scatter_rows(n.T, pix, n_pix).reshape(B, H, W, 3)
-    return RenderOutput(rgb=aa[..., :3], mask=aa[..., 3], depth=depth, normals=normals,
-                        rast=rast.reshape(B, H, W, 4), pos_clip=pos)
+    return RenderOutput(rgb=rgb, mask=mask, depth=depth, normals=normals, rast=rast.reshape(B, H, W, 4),
+                        pos_clip=pos)

@@ -290,7 +290,7 @@ class _ScatterRows(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, vals, idx, n):
-        out = vals.new_zeros(n, vals.shape[1])
+        out = vals.new_zeros((n,) + tuple(vals.shape[1:]))
         out.index_copy_(0, idx, vals)
         ctx.save_for_backward(idx)
         return out
@@ -489,7 +489,7 @@ def antialias(color: torch.Tensor, rast: torch.Tensor, pos: torch.Tensor, tri: t
     return _antialias_impl(color, tid_img, depth_img, pos, tri)
 
 
-def _antialias_impl(color, tid_img, depth_img, pos, tri):
+def _antialias_impl(color, tid_img, depth_img, pos, tri, split=False):
     pos, tri = _check_pos_tri(pos, tri)
     B, H, W, C = color.shape
     V = pos.shape[1]
@@ -551,6 +551,8 @@ def _antialias_impl(color, tid_img, depth_img, pos, tri):
                 ks = k[sel]
                 pairs.append((axis, pf[sel], po[sel], gv0[sel, ks], gv1[sel, ks], fi[sel], fj[sel], sgn[sel]))
     if not pairs:
+        if split:
+            return color[..., :-1].contiguous(), color[..., -1].contiguous()
         return color
     posf = pos.reshape(-1, 4)
     fs, pfs, pos_, tgts = [], [], [], []
@@ -566,9 +568,11 @@ def _antialias_impl(color, tid_img, depth_img, pos, tri):
         pfs.append(pf)
         pos_.append(po)
         tgts.append(torch.where(f.detach() > 0, po, pf))
-    out = _AABlendFn.apply(color.reshape(-1, C), torch.cat(fs).to(color.dtype), torch.cat(pfs),
-                           torch.cat(pos_), torch.cat(tgts))
-    return out.reshape(B, H, W, C)
+    args = (color.reshape(-1, C), torch.cat(fs).to(color.dtype), torch.cat(pfs), torch.cat(pos_), torch.cat(tgts))
+    if split:
+        rgb, last = _AABlendSplitFn.apply(*args)
+        return rgb.reshape(B, H, W, C - 1), last.reshape(B, H, W)
+    return _AABlendFn.apply(*args).reshape(B, H, W, C)
 
 
 class _AABlendFn(torch.autograd.Function):
@@ -597,6 +601,46 @@ class _AABlendFn(torch.autograd.Function):
         if ctx.needs_input_grad[0]:
             gd = g_t * f[:, None]
             g_color = g.clone().index_add_(0, pf, gd).index_add_(0, po, gd, alpha=-1)
+        return g_color, g_f, None, None, None
+
+
+class _AABlendSplitFn(torch.autograd.Function):
+    """_AABlendFn with the result split into (channels 0..C−2 (n, C−1), channel C−1 (n,))."""
+
+    @staticmethod
+    def forward(ctx, color, f, pf, po, target):
+        ctx.set_materialize_grads(False)
+        d = color.index_select(0, pf) - color.index_select(0, po)  # (K, C)
+        delta = d * f[:, None]
+        rgb = color[:, :-1].contiguous().index_add_(0, target, delta[:, :-1])
+        last = color[:, -1].contiguous().index_add_(0, target, delta[:, -1])
+        ctx.save_for_backward(f, pf, po, target, d)
+        ctx.shape = color.shape
+        return rgb, last
+
+    @staticmethod
+    def backward(ctx, g_rgb, g_last):
+        g = (g_rgb if g_rgb is not None else g_last).new_empty(ctx.shape)
+        if g_rgb is None:
+            g[:, :-1] = 0
+        else:
+            g[:, :-1] = g_rgb
+        if g_last is None:
+            g[:, -1] = 0
+        else:
+            g[:, -1] = g_last
+        f, pf, po, target, d = ctx.saved_tensors
+        g_t = g.index_select(0, target)  # (K, C)
+        g_f = None
+        if ctx.needs_input_grad[1]:
+            prod = g_t * d
+            g_f = prod[:, 0]
+            for c in range(1, prod.shape[1]):
+                g_f = g_f + prod[:, c]
+        g_color = None
+        if ctx.needs_input_grad[0]:
+            gd = g_t * f[:, None]
+            g_color = g.index_add_(0, pf, gd).index_add_(0, po, gd, alpha=-1)
         return g_color, g_f, None, None, None
 
 
@@ -736,9 +780,11 @@ def texture_compact(tex: torch.Tensor, uv: torch.Tensor, uv_da: torch.Tensor | N
 
 
 def antialias_core(color: torch.Tensor, tid_img: torch.Tensor, depth_img: torch.Tensor, pos: torch.Tensor,
-                   tri: torch.Tensor) -> torch.Tensor:
-    """antialias() on a triangle-id image (B, H, W) long (−1 empty) and a depth image (inf empty)."""
-    return _antialias_impl(color, tid_img, depth_img, pos, tri)
+                   tri: torch.Tensor, split: bool = False):
+    """antialias() on a triangle-id image (B, H, W) long (−1 empty) and a depth image (inf empty).
+    split=True returns (channels 0..C−2 (B, H, W, C−1), channel C−1 (B, H, W)) as separate contiguous
+    tensors (render_cloth's rgb and mask; cheaper than slicing one image, also in the backward)."""
+    return _antialias_impl(color, tid_img, depth_img, pos, tri, split=split)
 
 
 # ------------------------------------------------------------------------------------------ plane kernels
@@ -760,7 +806,8 @@ def plane_table(pos: torch.Tensor, tri: torch.Tensor, uv: torch.Tensor, normals:
     Differentiable (plain autograd: it is per triangle, not per pixel)."""
     B = pos.shape[0]
     T = tri.shape[0]
-    p = pos[:, tri]  # (B, T, 3, 4)
+    tf = tri.reshape(-1)
+    p = pos.index_select(1, tf).reshape(B, T, 3, 4)  # index_select: its backward is an index_add
     x, y, z, w = p.unbind(-1)  # (B, T, 3)
     with torch.no_grad():
         sw = w.sum(-1)
@@ -778,7 +825,8 @@ def plane_table(pos: torch.Tensor, tri: torch.Tensor, uv: torch.Tensor, normals:
     cm = torch.stack([alpha, beta, gamma], dim=-2)  # (B, T, 3 coef, 3 vertex)
     if uv.dim() == 2:
         uv = uv[None]
-    attr = torch.cat([uv.expand(B, -1, -1), pos[..., 3:4], normals], dim=-1)[:, tri]  # (B, T, 3, 6)
+    attr = torch.cat([uv.expand(B, -1, -1), pos[..., 3:4], normals], dim=-1)
+    attr = attr.index_select(1, tf).reshape(B, T, 3, 6)
     num = cm @ attr  # (B, T, 3, 6): u, v, w, n
     s = cm.sum(-1, keepdim=True)
     cz = (cm * z[:, :, None, :]).sum(-1, keepdim=True)
@@ -899,17 +947,23 @@ def _bilinear_taps(u: torch.Tensor, v: torch.Tensor, h: int, w: int):
 
 class _TexFn(torch.autograd.Function):
     """Trilinear (or bilinear) clamp-mode texture lookup on a box-filtered pyramid, structure-of-arrays:
-    planar texture levels (C, h·w), taps and weights (4, P), output (C, P); every per-pixel operation runs
-    on contiguous rows. Hand-written backward (an index_add per channel and level, the pyramid's adjoint,
-    and the coordinate gradient)."""
+    taps and weights (4, P), output (C, P), every per-pixel operation on contiguous rows. Level 0 is read
+    and its gradient written in the caller's (Ht, Wt, C) layout (a transposition of a 512² texture costs
+    more than the lookups); the small coarser levels are planar (C, h, w). Texel t, channel c of a level
+    sits at t·a + c·b of its flat storage. Hand-written backward (an index_add per channel and level, the
+    pyramid's adjoint, and the coordinate gradient)."""
 
     @staticmethod
     def forward(ctx, tex, u, v, lo, frac, n_levels):
         Ht, Wt, C = tex.shape
         P = u.shape[0]
-        levels = [tex.detach().permute(2, 0, 1).contiguous()]
+        t0 = tex.detach().contiguous()
+        levels = [t0.permute(2, 0, 1)]  # (C, h, w) views; level 0 in HWC memory
+        layout = [(t0.reshape(-1), C, 1)]
         for _ in range(n_levels - 1):
-            levels.append(_down2(levels[-1]))
+            t = _down2(levels[-1]).contiguous()
+            levels.append(t)
+            layout.append((t.reshape(-1), 1, t.shape[1] * t.shape[2]))
         if lo is None:  # every pixel on level 0 with weight 1
             plan = [(0, None, None)]
         else:
@@ -936,7 +990,11 @@ class _TexFn(torch.autograd.Function):
             if a is not None:
                 bw *= a
             bw = bw.to(t.dtype)
-            tv = t.reshape(C, h * w).index_select(1, idx.reshape(-1)).reshape(C, 4, -1)  # (C, 4, S)
+            flat, la, lb = layout[level]
+            idx_a = idx * la if la != 1 else idx
+            tv = bw.new_empty(C, 4, idx.shape[1])
+            for c in range(C):
+                torch.index_select(flat, 0, (idx_a + c * lb).reshape(-1), out=tv[c].view(-1))
             val = (tv * bw).sum(1)  # (C, S)
             if sel is None:
                 out = val if out is None else out + val
@@ -944,9 +1002,10 @@ class _TexFn(torch.autograd.Function):
                 if out is None:
                     out = val.new_zeros(C, P)
                 out.index_add_(1, sel, val)
-            saved.append((level, sel, a, idx, fx, fy, insx, insy, bw, tv))
+            saved.append((level, sel, a, idx_a, fx, fy, insx, insy, bw, tv))
         ctx.saved = saved
         ctx.shapes = [t.shape for t in levels]
+        ctx.layout = [(la, lb) for _, la, lb in layout]
         ctx.needs = ctx.needs_input_grad[:3]
         return out
 
@@ -959,16 +1018,23 @@ class _TexFn(torch.autograd.Function):
         g_lvl = [None] * len(shapes)
         gu = g.new_zeros(g.shape[1]) if need_u else None
         gv = g.new_zeros(g.shape[1]) if need_v else None
-        for level, sel, a, idx, fx, fy, insx, insy, bw, tv in ctx.saved:
+        def level_grad(level):  # zero gradient of a level as a (C, h, w) view of its storage layout
+            _, h, w = shapes[level]
+            buf = g.new_zeros(h * w * C)
+            view = buf.view(h, w, C).permute(2, 0, 1) if ctx.layout[level][1] == 1 else buf.view(C, h, w)
+            return buf, view
+
+        bufs = {}
+        for level, sel, a, idx_a, fx, fy, insx, insy, bw, tv in ctx.saved:
             _, h, w = shapes[level]
             gs = g if sel is None else g.index_select(1, sel)
             if need_tex:
-                acc = g.new_zeros(C, h * w)
-                flat = idx.reshape(-1)
+                if g_lvl[level] is None:
+                    bufs[level], g_lvl[level] = level_grad(level)
+                buf = bufs[level]
+                lb = ctx.layout[level][1]
                 for c in range(C):
-                    acc[c].index_add_(0, flat, (bw * gs[c]).reshape(-1))
-                acc = acc.reshape(C, h, w)
-                g_lvl[level] = acc if g_lvl[level] is None else g_lvl[level] + acc
+                    buf.index_add_(0, (idx_a + c * lb).reshape(-1), (bw * gs[c]).reshape(-1))
             if gu is not None or gv is not None:
                 gd = tv[0] * gs[0]
                 for c in range(1, C):
@@ -995,10 +1061,11 @@ class _TexFn(torch.autograd.Function):
                 if g_lvl[level] is None:
                     continue
                 if g_lvl[level - 1] is None:
-                    g_lvl[level - 1] = g.new_zeros(shapes[level - 1])
+                    bufs[level - 1], g_lvl[level - 1] = level_grad(level - 1)
                 _down2_adjoint_add_(g_lvl[level - 1], g_lvl[level])
-            g_tex = g_lvl[0] if g_lvl[0] is not None else g.new_zeros(shapes[0])
-            g_tex = g_tex.permute(1, 2, 0)
+            if g_lvl[0] is None:
+                bufs[0], g_lvl[0] = level_grad(0)
+            g_tex = bufs[0].view(shapes[0][1], shapes[0][2], C)
         return g_tex, gu, gv, None, None, None
 
 
