@@ -22,7 +22,8 @@ import numpy as np
 import torch
 
 from saft.errors import SimulationError
-from saft.physics.energy import LN10, ElementEval
+from saft.physics.energy import LN10, ElementEval  # noqa: F401 (ElementEval: tests patch it here)
+from saft.physics.kernels import StepKernels
 from saft.physics.solver import JacobiCGSolver, ReusedLUSolver, SolveStats, _csr
 from saft.physics.topology import ClothTopology
 
@@ -98,7 +99,8 @@ def _solver_for(topology: ClothTopology, solver: str, tol: float, stats: SolveSt
 class _Sim:
     """Everything a rollout needs besides the differentiable inputs."""
 
-    def __init__(self, topology, num_frames, substeps, frame_dt, pinned, pinned_positions, hessian, solver, tol):
+    def __init__(self, topology, num_frames, substeps, frame_dt, pinned, pinned_positions, hessian, solver, tol,
+                 compile=None):
         t = topology
         self.t = t
         self.V = t.num_vertices
@@ -109,7 +111,9 @@ class _Sim:
         self.solver_kind = solver
         self.tol = tol
         self.keep_matrices_bytes = 512 * 2**20
+        self.kernels = StepKernels(t, hessian, compile=compile)
         self.stats = SolveStats()
+        self.stats_out = None  # the caller's stats dict (backward counters are added as bwd_*)
         self.use_numpy = (solver == "lu") or (solver == "auto" and t.device.type == "cpu")
         self.m3 = t.mass[:, None].expand(-1, 3)  # (V, 3)
         self.mass_diag = t.mass.repeat_interleave(3)  # (3V,)
@@ -200,6 +204,8 @@ class _RolloutFn(torch.autograd.Function):
         solver = sim.new_solver()
         m3 = sim.m3
         pinned = sim.pinned
+        kern = sim.kernels
+        Yt, Bt, St, hh = (x0.new_tensor(c) for c in (Y, B, S, h * h))
         # keep the system matrices for the adjoint pass when they fit the memory budget
         keep_A = (N - 1) * ns * t.nnz * x0.element_size() <= sim.keep_matrices_bytes
         A_saved = []
@@ -211,9 +217,7 @@ class _RolloutFn(torch.autograd.Function):
                 saved[i, 0] = x
                 saved[i, 1] = v
                 vd = d * v
-                ev = ElementEval(t, x, Y, B, S, sim.mode)
-                gradE = ev.grad().T  # (V, 3)
-                _, A = sim.system(ev)
+                gradE, A = kern.forward(x, Yt, Bt, St, hh, sim.mass_diag, t.diag_idx)  # (V, 3), (nnz,)
                 b = (m3 * vd + h * (m3 * a - gradE)).reshape(-1)
                 if pinned is not None:
                     tgt = sim.target(x0, k, s)
@@ -226,6 +230,8 @@ class _RolloutFn(torch.autograd.Function):
                     A[sim.pin_diag] = 1.0
                 if keep_A:
                     A_saved.append(A)
+                if hasattr(solver, "at_step"):
+                    solver.at_step(i)
                 v1 = sim.lin_solve(solver, A, b, vd.reshape(-1)).reshape(V, 3)
                 if pinned is not None:
                     v1[pinned] = vP
@@ -255,6 +261,8 @@ class _RolloutFn(torch.autograd.Function):
         m3 = sim.m3
         pinned = sim.pinned
         solver = ctx.solver  # starts from the forward pass's last factorisation
+        kern = sim.kernels
+        Yt, Bt, St, hh, ht = (x0.new_tensor(c) for c in (Y, B, S, h * h, h))
         grad_pos = grad_pos.to(x0.dtype)
         gx = grad_pos[N - 1].clone()
         gv = torch.zeros_like(x0)
@@ -263,7 +271,6 @@ class _RolloutFn(torch.autograd.Function):
         gB = torch.zeros_like(gY)
         gS = torch.zeros_like(gY)
         gd = torch.zeros_like(gY)
-        bw = t.bend_w
         lam_guess = torch.zeros(3 * V, dtype=x0.dtype, device=x0.device)
         for k in range(N - 2, -1, -1):
             for s in range(ns - 1, -1, -1):
@@ -272,34 +279,38 @@ class _RolloutFn(torch.autograd.Function):
                 if pinned is not None:
                     gx[pinned] = 0.0
                     gv[pinned] = 0.0
-                ev = ElementEval(t, x, Y, B, S, sim.mode)
                 if ctx.A_saved is not None:
                     A = ctx.A_saved[i]
                 else:
-                    _, A = sim.system(ev)
+                    A = kern.forward(x, Yt, Bt, St, hh, sim.mass_diag, t.diag_idx)[1]
                     if pinned is not None:
                         A = A * sim.keep
                         A[sim.pin_diag] = 1.0
                 rhs = (gv + h * gx).reshape(-1)
+                if hasattr(solver, "at_step"):
+                    solver.at_step(i, select=True)
                 lam = sim.lin_solve(solver, A, rhs, lam_guess)
                 _check(lam, "adjoint", k, s)
                 lam_guess = lam
                 lamV = lam.view(V, 3)
-                adj = ev.adjoint_terms(lamV.T, v1.T)
-                # d/dx of lam.(b - A v1): -h (true Hessian) lam - h^2 d/dx(lam^T K(x) v1)
-                gparts = (-h) * ev.exact_hvp_parts(lamV.T) - (h * h) * adj["third_parts"]
-                gx = gx + ev.scatter(gparts).T
+                # d/dx of lam.(b - A v1): -h (true Hessian) lam - h^2 d/dx(lam^T K(x) v1), and the
+                # stiffness terms -h lam.dE_k/dx - h^2 lam^T K_k v1 (each linear in its stiffness)
+                dgx, dY, dB, dS = kern.adjoint(x, lamV, v1, Yt, Bt, St, ht)
+                gx = gx + dgx
                 mlam = m3 * lamV
                 gd += (mlam * v).sum()
                 g_a[k] += h * mlam
-                gY += -h * adj["spring_lg"].sum() - h * h * adj["spring_lKw"].sum()
-                hc = -h * adj["hinge_lg"] - h * h * adj["hinge_lKw"]
-                gB += (hc * bw).sum()
-                gS += (hc * (1.0 - bw)).sum()
+                gY += dY
+                gB += dB
+                gS += dS
                 gv = d * mlam
                 _check(gx, "position adjoint", k, s)
             gx = gx + grad_pos[k]
         ctx.A_saved = None
+        ctx.solver = None  # frees the kept factors
+        if sim.stats_out is not None:
+            tot = sim.stats.as_dict()
+            sim.stats_out.update({f"bwd_{k}": tot[k] - sim.stats_out.get(k, 0) for k in tot})
         if pinned is not None:
             # pinned targets are constants; x0 at pinned vertices only reaches positions[0]
             gx[pinned] = grad_pos[0][pinned]
@@ -333,6 +344,7 @@ def rollout(
     solver: str = "auto",
     tol: float = 1e-6,
     stats: dict | None = None,
+    compile: bool | None = None,
 ) -> torch.Tensor:
     """Simulate ``num_frames`` video frames from (x0, v0); returns positions (num_frames, V, 3) with
     positions[0] = x0. Differentiable w.r.t. x0, v0 and every tensor in ``params``.
@@ -341,7 +353,10 @@ def rollout(
     (num_frames, P, 3), linearly interpolated within a frame's substeps (targets get no gradient).
     hessian: "projected" (PSD element Hessians, default) or "exact" (true Hessian, may be indefinite).
     solver: "auto" (reused sparse LU + PCG on CPU, Jacobi PCG on other devices), "lu" or "cg".
-    tol: relative residual of every linear solve. stats: if a dict, receives solver counters.
+    tol: relative residual of every linear solve. stats: if a dict, receives solver counters (forward;
+    the backward's are added as bwd_* when it runs).
+    compile: torch.compile the per-substep element kernels (None: the SAFT_PHYSICS_COMPILE environment
+    variable, off by default; falls back to eager with a warning if compilation fails).
     Raises SimulationError (naming frame and substep) on NaN/inf.
     """
     t = topology
@@ -363,7 +378,8 @@ def rollout(
             )
         # longer is fine (frames added progressively): the unused frames get zero gradient
         a_vert = a_vert[: num_frames - 1]
-    sim = _Sim(t, num_frames, substeps, frame_dt, pinned, pinned_positions, hessian, solver, tol)
+    sim = _Sim(t, num_frames, substeps, frame_dt, pinned, pinned_positions, hessian, solver, tol, compile)
+    sim.stats_out = stats
     f = dict(device=dev, dtype=dt)
 
     def sc(v):

@@ -45,7 +45,8 @@ class ReusedLUSolver:
     """CPU: CG preconditioned by a reused sparse LU factorisation, refactorised when needed."""
 
     def __init__(self, indptr: np.ndarray, indices: np.ndarray, tol: float = 1e-6, max_iter: int = 40,
-                 refactor_after: int = 20, precond_float32: bool = True, stats: SolveStats | None = None):
+                 refactor_after: int = 10, precond_float32: bool = True, stats: SolveStats | None = None,
+                 keep_factors_bytes: int = 256 * 2**20):
         self.indptr = indptr.astype(np.int32)
         self.indices = indices.astype(np.int32)
         self.n = len(indptr) - 1
@@ -54,7 +55,36 @@ class ReusedLUSolver:
         self.refactor_after = refactor_after  # CG needed more iterations: refresh the factor for next time
         self.precond_float32 = precond_float32
         self.lu = None
+        self.lu_f32 = False
         self.stats = stats if stats is not None else SolveStats()
+        # factors made during the forward pass, by substep: the adjoint solve of substep i (same matrix
+        # A_i) is preconditioned by the factor made nearest to i instead of a stale or fresh one
+        self.step = None
+        self.keep_factors_bytes = keep_factors_bytes
+        self.factors: dict[int, tuple] = {}
+        self._factor_bytes = 0
+
+    def at_step(self, i: int | None, select: bool = False):
+        """Tag the following solves with substep ``i``; with ``select`` switch to the kept factor made
+        nearest to it (the backward pass walks the substeps in reverse)."""
+        self.step = i
+        if select and self.factors and i is not None:
+            j = min(self.factors, key=lambda k: abs(k - i))
+            self.lu, self.lu_f32 = self.factors[j]
+
+    def _keep(self):
+        if self.step is None:
+            return
+        nbytes = (self.lu.L.nnz + self.lu.U.nnz) * (4 + (4 if self.lu_f32 else 8))
+        if self._factor_bytes + nbytes > self.keep_factors_bytes:
+            # over budget: thin out the kept factors (every other one), keeping the spread over time
+            for k in sorted(self.factors)[1::2]:
+                lu, f32 = self.factors.pop(k)
+                self._factor_bytes -= (lu.L.nnz + lu.U.nnz) * (4 + (4 if f32 else 8))
+            if self._factor_bytes + nbytes > self.keep_factors_bytes:
+                return
+        self.factors[self.step] = (self.lu, self.lu_f32)
+        self._factor_bytes += nbytes
 
     def matrix(self, data: np.ndarray) -> sp.csr_matrix:
         return sp.csr_matrix((data, self.indices, self.indptr), shape=(self.n, self.n), copy=False)
@@ -73,6 +103,7 @@ class ReusedLUSolver:
             self.lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                                 options=dict(SymmetricMode=True))
         self.stats.factorizations += 1
+        self._keep()
 
     def solve(self, data: np.ndarray, b: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
         self.stats.solves += 1
