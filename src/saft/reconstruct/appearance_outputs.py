@@ -30,7 +30,8 @@ def run_appearance_phase(out_dir: Path, positions: np.ndarray, triangles: np.nda
 
     last = [time.perf_counter()]
 
-    def on_progress(epoch: int, epochs: int, loss: float) -> None:
+    def on_progress(epochs_done: int, epochs: int, loss: float) -> None:
+        epoch = epochs_done - 1
         progress.update(epoch, len(positions), loss)
         if epoch_log is not None:
             now = time.perf_counter()
