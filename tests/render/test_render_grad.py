@@ -208,6 +208,17 @@ def test_antialias_blend_backward_is_exact():
     target = torch.where(f.detach() > 0, po, pf)
     target[6:] = target[:6]  # repeated targets
     assert torch.autograd.gradcheck(lambda c, x: tb._AABlendFn.apply(c, x, pf, po, target), (color, f))
+    # render_cloth's split form (rgb and coverage as two tensors) is the same blend
+    rgb, last = color.detach()[:, :2].clone(), color.detach()[:, 2].clone()
+    r2, l2 = tb._AABlendSplitFn.apply(rgb, last, f.detach(), pf, po, target)
+    whole = tb._AABlendFn.apply(color.detach(), f.detach(), pf, po, target)
+    torch.testing.assert_close(torch.cat([r2, l2[:, None]], 1), whole)
+    assert torch.autograd.gradcheck(lambda r, c, x: tb._AABlendSplitFn.apply(r, c, x, pf, po, target),
+                                    (rgb.requires_grad_(True), last.requires_grad_(True), f))
+    assert torch.autograd.gradcheck(lambda r, x: tb._AABlendSplitFn.apply(r, last.detach(), x, pf, po, target)[0],
+                                    (rgb, f))
+    vals = torch.rand(3, 5, dtype=torch.float64, generator=g, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda x: tb._ScatterPlanar.apply(x, torch.tensor([7, 1, 3, 0, 9]), 10), (vals,))
     verts, tris, _, _ = folded_sheet()
     cam = pinhole(16, 14, 20.0)
     tri = torch.tensor(tris)

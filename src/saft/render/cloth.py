@@ -124,15 +124,15 @@ def _render_cloth_torch(vertices, pos, tri, uv, tex, H, W, max_mip_level) -> Ren
     table = tb.plane_table(pos, tri, uv_tex, normals_v)
     uv_pix, depth_c, n, bw, zw, uv_da = tb.plane_interp(table, row_idx, nx, ny, H, W)
     rgb_c = tb.texture_fast(tex, uv_pix[0], uv_pix[1], uv_da, max_mip_level=max_mip_level)
-    ones = torch.ones_like(rgb_c[:1])
-    color = tb._scatter_rows(torch.cat([rgb_c.to(pos.dtype), ones], dim=0).T, pix, n_pix).reshape(B, H, W, 4)
+    rgb_img = tb._ScatterPlanar.apply(rgb_c.to(pos.dtype), pix, n_pix).reshape(B, H, W, 3)
+    cov_img = pos.new_zeros(n_pix).index_fill_(0, pix, 1.0).reshape(B, H, W)  # coverage, no gradient
     with torch.no_grad():
         tid_img = torch.full((n_pix,), -1, dtype=torch.long, device=pos.device).index_copy_(0, pix, tid)
         depth_img = torch.full((n_pix,), math.inf, dtype=pos.dtype, device=pos.device).index_copy_(0, pix, zw)
         rast = pos.new_zeros(n_pix, 4).index_copy_(
             0, pix, torch.stack([bw[0], bw[1], zw, (tid + 1).to(pos.dtype)], dim=-1))
-    rgb, mask = tb.antialias_core(color, tid_img.reshape(B, H, W), depth_img.reshape(B, H, W), pos, tri,
-                                  split=True)
+    rgb, mask = tb.antialias_core((rgb_img, cov_img), tid_img.reshape(B, H, W), depth_img.reshape(B, H, W),
+                                  pos, tri, split=True)
     depth = tb._scatter_rows(depth_c, pix, n_pix).reshape(B, H, W)
     n = n / (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt().clamp_min(1e-12)  # (3, P): no dim-0 norm
     normals = tb._scatter_rows(n.T, pix, n_pix).reshape(B, H, W, 3)

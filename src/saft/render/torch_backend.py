@@ -491,7 +491,10 @@ def antialias(color: torch.Tensor, rast: torch.Tensor, pos: torch.Tensor, tri: t
 
 def _antialias_impl(color, tid_img, depth_img, pos, tri, split=False):
     pos, tri = _check_pos_tri(pos, tri)
-    B, H, W, C = color.shape
+    if split:  # color = (channels (B, H, W, C−1), last channel (B, H, W)) as separate tensors
+        B, H, W, C = color[0].shape[:3] + (color[0].shape[3] + 1,)
+    else:
+        B, H, W, C = color.shape
     V = pos.shape[1]
     T = tri.shape[0]
     with torch.no_grad():
@@ -551,8 +554,6 @@ def _antialias_impl(color, tid_img, depth_img, pos, tri, split=False):
                 ks = k[sel]
                 pairs.append((axis, pf[sel], po[sel], gv0[sel, ks], gv1[sel, ks], fi[sel], fj[sel], sgn[sel]))
     if not pairs:
-        if split:
-            return color[..., :-1].contiguous(), color[..., -1].contiguous()
         return color
     posf = pos.reshape(-1, 4)
     fs, pfs, pos_, tgts = [], [], [], []
@@ -568,11 +569,12 @@ def _antialias_impl(color, tid_img, depth_img, pos, tri, split=False):
         pfs.append(pf)
         pos_.append(po)
         tgts.append(torch.where(f.detach() > 0, po, pf))
-    args = (color.reshape(-1, C), torch.cat(fs).to(color.dtype), torch.cat(pfs), torch.cat(pos_), torch.cat(tgts))
+    dt = color[0].dtype if split else color.dtype
+    args = (torch.cat(fs).to(dt), torch.cat(pfs), torch.cat(pos_), torch.cat(tgts))
     if split:
-        rgb, last = _AABlendSplitFn.apply(*args)
+        rgb, last = _AABlendSplitFn.apply(color[0].reshape(-1, C - 1), color[1].reshape(-1), *args)
         return rgb.reshape(B, H, W, C - 1), last.reshape(B, H, W)
-    return _AABlendFn.apply(*args).reshape(B, H, W, C)
+    return _AABlendFn.apply(color.reshape(-1, C), *args).reshape(B, H, W, C)
 
 
 class _AABlendFn(torch.autograd.Function):
@@ -605,43 +607,62 @@ class _AABlendFn(torch.autograd.Function):
 
 
 class _AABlendSplitFn(torch.autograd.Function):
-    """_AABlendFn with the result split into (channels 0..C−2 (n, C−1), channel C−1 (n,))."""
+    """_AABlendFn on a colour given as two tensors, channels (n, C−1) and a last channel (n,) (render_cloth's
+    rgb and coverage), returned the same way: no interleaved slicing or copies of one (n, C) image."""
 
     @staticmethod
-    def forward(ctx, color, f, pf, po, target):
+    def forward(ctx, rgb, last, f, pf, po, target):
         ctx.set_materialize_grads(False)
-        d = color.index_select(0, pf) - color.index_select(0, po)  # (K, C)
-        delta = d * f[:, None]
-        rgb = color[:, :-1].contiguous().index_add_(0, target, delta[:, :-1])
-        last = color[:, -1].contiguous().index_add_(0, target, delta[:, -1])
-        ctx.save_for_backward(f, pf, po, target, d)
-        ctx.shape = color.shape
-        return rgb, last
+        d_rgb = rgb.index_select(0, pf) - rgb.index_select(0, po)  # (K, C−1)
+        d_last = last.index_select(0, pf) - last.index_select(0, po)  # (K,)
+        rgb_out = rgb.clone().index_add_(0, target, d_rgb * f[:, None])
+        last_out = last.clone().index_add_(0, target, d_last * f)
+        ctx.save_for_backward(f, pf, po, target, d_rgb, d_last)
+        return rgb_out, last_out
 
     @staticmethod
     def backward(ctx, g_rgb, g_last):
-        g = (g_rgb if g_rgb is not None else g_last).new_empty(ctx.shape)
-        if g_rgb is None:
-            g[:, :-1] = 0
-        else:
-            g[:, :-1] = g_rgb
-        if g_last is None:
-            g[:, -1] = 0
-        else:
-            g[:, -1] = g_last
-        f, pf, po, target, d = ctx.saved_tensors
-        g_t = g.index_select(0, target)  # (K, C)
+        f, pf, po, target, d_rgb, d_last = ctx.saved_tensors
         g_f = None
-        if ctx.needs_input_grad[1]:
-            prod = g_t * d
-            g_f = prod[:, 0]
-            for c in range(1, prod.shape[1]):
-                g_f = g_f + prod[:, c]
-        g_color = None
-        if ctx.needs_input_grad[0]:
-            gd = g_t * f[:, None]
-            g_color = g.index_add_(0, pf, gd).index_add_(0, po, gd, alpha=-1)
-        return g_color, g_f, None, None, None
+        outs = []
+        for gg, d, need in ((g_rgb, d_rgb, ctx.needs_input_grad[0]), (g_last, d_last, ctx.needs_input_grad[1])):
+            if gg is None:
+                outs.append(None)
+                continue
+            g_t = gg.index_select(0, target)
+            if ctx.needs_input_grad[2]:
+                prod = g_t * d
+                if prod.dim() == 2:
+                    acc = prod[:, 0]
+                    for c in range(1, prod.shape[1]):
+                        acc = acc + prod[:, c]
+                    prod = acc
+                g_f = prod if g_f is None else g_f + prod
+            if need:
+                gd = g_t * (f[:, None] if g_t.dim() == 2 else f)
+                outs.append(gg.clone().index_add_(0, pf, gd).index_add_(0, po, gd, alpha=-1))
+            else:
+                outs.append(None)
+        return outs[0], outs[1], g_f, None, None, None
+
+
+class _ScatterPlanar(torch.autograd.Function):
+    """out = zeros(n, C); out[idx] = vals.T for planar vals (C, P) (idx unique); the backward gathers
+    each channel into a contiguous row (no transposition of an interleaved gradient)."""
+
+    @staticmethod
+    def forward(ctx, vals, idx, n):
+        out = vals.new_zeros(n, vals.shape[0]).index_copy_(0, idx, vals.T)
+        ctx.save_for_backward(idx)
+        return out
+
+    @staticmethod
+    def backward(ctx, g):
+        (idx,) = ctx.saved_tensors
+        gv = g.new_empty(g.shape[1], idx.shape[0])
+        for c in range(g.shape[1]):
+            torch.index_select(g[:, c], 0, idx, out=gv[c])
+        return gv, None, None
 
 
 class TorchRasterizer:
@@ -782,8 +803,8 @@ def texture_compact(tex: torch.Tensor, uv: torch.Tensor, uv_da: torch.Tensor | N
 def antialias_core(color: torch.Tensor, tid_img: torch.Tensor, depth_img: torch.Tensor, pos: torch.Tensor,
                    tri: torch.Tensor, split: bool = False):
     """antialias() on a triangle-id image (B, H, W) long (−1 empty) and a depth image (inf empty).
-    split=True returns (channels 0..C−2 (B, H, W, C−1), channel C−1 (B, H, W)) as separate contiguous
-    tensors (render_cloth's rgb and mask; cheaper than slicing one image, also in the backward)."""
+    split=True: color is a pair (channels (B, H, W, C−1), last channel (B, H, W)) and so is the result
+    (render_cloth's rgb and coverage; cheaper than slicing one interleaved image, also in the backward)."""
     return _antialias_impl(color, tid_img, depth_img, pos, tri, split=split)
 
 
