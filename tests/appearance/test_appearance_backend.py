@@ -69,3 +69,32 @@ def test_real_llvm15_does_not_crash_the_caller():
 def test_candidates_are_new_enough():
     for path in find_llvm_candidates():
         assert _llvm_version_of(path)[0] >= 19
+
+
+def test_default_lookup_failure_selects_a_found_llvm(monkeypatch):
+    # when the default lookup fails and the user set nothing, a found LLVM >= 19 goes into DRJIT_LIBLLVM_PATH
+    import saft.appearance.mitsuba_backend as mb
+
+    calls = []
+
+    def fake_probe(variant, env, timeout=120.0):
+        calls.append(env.get("DRJIT_LIBLLVM_PATH"))
+        if env.get("DRJIT_LIBLLVM_PATH") == "/opt/llvm-21/lib/libLLVM.so.21.1":
+            return True, "LLVM 21.1.0\nOK"
+        return False, "jit_init_thread_state(): the LLVM backend is inactive"
+
+    monkeypatch.delenv("DRJIT_LIBLLVM_PATH", raising=False)
+    monkeypatch.setattr(mb, "_checked", {})
+    monkeypatch.setattr(mb, "_probe", fake_probe)
+    monkeypatch.setattr(mb, "find_llvm_candidates", lambda min_major=19: ["/opt/llvm-21/lib/libLLVM.so.21.1"])
+    assert mb.ensure_backend("cpu") == "llvm_ad_rgb"
+    assert calls == [None, "/opt/llvm-21/lib/libLLVM.so.21.1"]
+    assert os.environ["DRJIT_LIBLLVM_PATH"] == "/opt/llvm-21/lib/libLLVM.so.21.1"
+    monkeypatch.delenv("DRJIT_LIBLLVM_PATH", raising=False)
+
+    # nothing found: one line naming the package to install
+    monkeypatch.setattr(mb, "_checked", {})
+    monkeypatch.setattr(mb, "find_llvm_candidates", lambda min_major=19: [])
+    with pytest.raises(mb.BackendUnavailableError) as info:
+        mb.ensure_backend("cpu")
+    assert INSTALL_HINT in str(info.value) and "\n" not in str(info.value)
