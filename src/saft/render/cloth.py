@@ -40,11 +40,10 @@ class RenderOutput:
 
 def vertex_normals(vertices: torch.Tensor, tri: torch.Tensor) -> torch.Tensor:
     """(B, V, 3) unit area-weighted vertex normals (right-hand rule on the triangle winding)."""
-    v0, v1, v2 = vertices[:, tri[:, 0]], vertices[:, tri[:, 1]], vertices[:, tri[:, 2]]
-    fn = torch.cross(v1 - v0, v2 - v0, dim=-1)  # length = 2·area
-    n = torch.zeros_like(vertices)
-    for k in range(3):
-        n = n.index_add(1, tri[:, k], fn)
+    B, T = vertices.shape[0], tri.shape[0]
+    v = vertices.index_select(1, tri.T.reshape(-1)).reshape(B, 3, T, 3)  # index_select: index_add backward
+    fn = torch.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0], dim=-1)  # length = 2·area
+    n = torch.zeros_like(vertices).index_add(1, tri.T.reshape(-1), fn.repeat(1, 3, 1))
     return n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
 

@@ -945,6 +945,30 @@ def _down2_adjoint_add_(acc: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
     return acc
 
 
+def _down2_hwc(t: torch.Tensor) -> torch.Tensor:
+    """_down2 of an (h, w, C) level, (h/2, w/2, C) contiguous; even sizes without small-dimension
+    strided operations (rows of 2C floats are contiguous in HWC memory)."""
+    h, w, C = t.shape
+    if h >= 2 and w >= 2 and h % 2 == 0 and w % 2 == 0 and t.is_contiguous():
+        r = t.view(h // 2, 2, w // 2, 2 * C)
+        r = r[:, 0] + r[:, 1]
+        return (r[..., :C] + r[..., C:]) * 0.25
+    return _down2(t.permute(2, 0, 1)).permute(1, 2, 0).contiguous()
+
+
+def _down2_adjoint_add_hwc_(acc: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
+    """acc (h, w, C) += adjoint of _down2_hwc applied to g (h/2, w/2, C), in place."""
+    h, w, C = acc.shape
+    if h >= 2 and w >= 2 and h % 2 == 0 and w % 2 == 0 and acc.is_contiguous():
+        g2 = torch.cat([g, g], dim=-1).mul_(0.25)  # (h/2, w/2, 2C): both columns of a pair
+        a = acc.view(h // 2, 2, w // 2, 2 * C)
+        a[:, 0] += g2
+        a[:, 1] += g2
+        return acc
+    _down2_adjoint_add_(acc.permute(2, 0, 1), g.permute(2, 0, 1))
+    return acc
+
+
 def _bilinear_taps(u: torch.Tensor, v: torch.Tensor, h: int, w: int):
     """Clamp-to-edge bilinear lookup at the texel-centre convention (grid_sample, border padding,
     align_corners=False): tap indices (4, P) into the h·w texels (order 00, 01, 10, 11), fractions fx, fy,
@@ -968,10 +992,9 @@ def _bilinear_taps(u: torch.Tensor, v: torch.Tensor, h: int, w: int):
 
 class _TexFn(torch.autograd.Function):
     """Trilinear (or bilinear) clamp-mode texture lookup on a box-filtered pyramid, structure-of-arrays:
-    taps and weights (4, P), output (C, P), every per-pixel operation on contiguous rows. Level 0 is read
-    and its gradient written in the caller's (Ht, Wt, C) layout (a transposition of a 512² texture costs
-    more than the lookups); the small coarser levels are planar (C, h, w). Texel t, channel c of a level
-    sits at t·a + c·b of its flat storage. Hand-written backward (an index_add per channel and level, the
+    taps and weights (4, P), output (C, P), every per-pixel operation on contiguous rows. Every level is
+    read and its gradient written in the caller's (h, w, C) layout (a transposition of a 512² texture
+    costs more than the lookups). Texel t, channel c of a level sits at t·a + c·b of its flat storage. Hand-written backward (an index_add per channel and level, the
     pyramid's adjoint, and the coordinate gradient)."""
 
     @staticmethod
@@ -979,12 +1002,12 @@ class _TexFn(torch.autograd.Function):
         Ht, Wt, C = tex.shape
         P = u.shape[0]
         t0 = tex.detach().contiguous()
-        levels = [t0.permute(2, 0, 1)]  # (C, h, w) views; level 0 in HWC memory
+        levels = [t0.permute(2, 0, 1)]  # (C, h, w) views of HWC storage
         layout = [(t0.reshape(-1), C, 1)]
         for _ in range(n_levels - 1):
-            t = _down2(levels[-1]).contiguous()
-            levels.append(t)
-            layout.append((t.reshape(-1), 1, t.shape[1] * t.shape[2]))
+            t = _down2_hwc(levels[-1].permute(1, 2, 0))
+            levels.append(t.permute(2, 0, 1))
+            layout.append((t.reshape(-1), C, 1))
         if lo is None:  # every pixel on level 0 with weight 1
             plan = [(0, None, None)]
         else:
@@ -1083,7 +1106,7 @@ class _TexFn(torch.autograd.Function):
                     continue
                 if g_lvl[level - 1] is None:
                     bufs[level - 1], g_lvl[level - 1] = level_grad(level - 1)
-                _down2_adjoint_add_(g_lvl[level - 1], g_lvl[level])
+                _down2_adjoint_add_hwc_(g_lvl[level - 1].permute(1, 2, 0), g_lvl[level].permute(1, 2, 0))
             if g_lvl[0] is None:
                 bufs[0], g_lvl[0] = level_grad(0)
             g_tex = bufs[0].view(shapes[0][1], shapes[0][2], C)
