@@ -12,9 +12,12 @@
       log.csv                per epoch: phase, epoch, frames in use, each loss term, seconds
       timings.json           seconds per phase
       metrics.json           with ground truth: per-frame and mean CD2, CD1, p2s (saft evaluate)
+      depth/frame_000.npz    optional, with depth ground truth: arrays `rendered` and `target`, H×W depth in
+                             metres along the camera z axis of the working camera, NaN where there is no cloth
       material/              phase 3: diffuse.png, roughness.png, metallic.png, envmap.exr (+ envmap.png),
                              renders/frame_000.png re-renders, novel_view.png
       checkpoint/            state for --resume (removed only by the user)
+      report.html            saft report (saft.export); export/ holds what `saft export` writes by default
 
 Every file is written atomically (saft.io_utils), so an interrupted run never leaves a half-written one.
 """
@@ -49,6 +52,31 @@ def list_mesh_files(result_dir: str | Path) -> list[Path]:
     if not files:
         raise SaftInputError(folder, "no frame_*.obj meshes in this folder")
     return files
+
+
+def list_render_files(result_dir: str | Path, material: bool = False) -> list[Path]:
+    """renders/frame_*.png (or material/renders/frame_*.png), sorted; [] when there are none."""
+    folder = Path(result_dir) / ("material/renders" if material else "renders")
+    return sorted(folder.glob("frame_*.png")) if folder.is_dir() else []
+
+
+def list_depth_files(result_dir: str | Path) -> list[Path]:
+    """depth/frame_*.npz, sorted; [] without depth ground truth."""
+    folder = Path(result_dir) / "depth"
+    return sorted(folder.glob("frame_*.npz")) if folder.is_dir() else []
+
+
+def read_depth_pair(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """(rendered, target) depth maps (H×W float, metres, NaN = no cloth) of one depth/frame_*.npz."""
+    path = Path(path)
+    try:
+        with np.load(path) as data:
+            rendered, target = np.asarray(data["rendered"], dtype=np.float64), np.asarray(data["target"], dtype=np.float64)
+    except (OSError, ValueError, KeyError) as exc:
+        raise SaftInputError(path, f"not a depth pair with arrays 'rendered' and 'target' ({exc})") from None
+    if rendered.ndim != 2 or rendered.shape != target.shape:
+        raise SaftInputError(path, f"depth maps must be two H×W arrays of one size, got {rendered.shape} and {target.shape}")
+    return rendered, target
 
 
 def mtl_text(texture_rel: str = "../texture.png") -> str:

@@ -1,0 +1,198 @@
+"""Matplotlib figures of a result, returned as PNG bytes (headless Agg backend, no display needed)."""
+
+from __future__ import annotations
+
+import io
+import math
+from pathlib import Path
+
+import numpy as np
+
+# columns of log.csv that are not loss terms
+LOG_META_COLUMNS = {"phase", "epoch", "frames", "frames_in_use", "seconds", "time", "lr", "step"}
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def fig_to_png(fig, dpi: int = 100) -> bytes:
+    plt = _plt()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def array_to_png(img: np.ndarray) -> bytes:
+    """A float [0, 1] or uint8 image (H×W, H×W×1/3/4) as PNG bytes."""
+    from PIL import Image
+
+    a = np.asarray(img)
+    if a.dtype != np.uint8:
+        a = (np.clip(np.nan_to_num(a.astype(np.float32)), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    if a.ndim == 3 and a.shape[2] == 1:
+        a = a[:, :, 0]
+    buf = io.BytesIO()
+    Image.fromarray(a).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def _float(x) -> float | None:
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) else None
+
+
+def loss_series(log_rows: list[dict]) -> dict[str, dict[str, tuple[np.ndarray, np.ndarray]]]:
+    """{phase: {loss term: (x, y)}} from log.csv rows; x is the epoch (or the row number without one)."""
+    out: dict[str, dict[str, tuple[list, list]]] = {}
+    for n, row in enumerate(log_rows):
+        phase = str(row.get("phase") or "run")
+        x = _float(row.get("epoch"))
+        x = float(n) if x is None else x
+        for key, val in row.items():
+            if key is None or key.strip().lower() in LOG_META_COLUMNS:
+                continue
+            y = _float(val)
+            if y is None:
+                continue
+            xs, ys = out.setdefault(phase, {}).setdefault(key, ([], []))
+            xs.append(x)
+            ys.append(y)
+    return {ph: {k: (np.asarray(xs), np.asarray(ys)) for k, (xs, ys) in terms.items()} for ph, terms in out.items()}
+
+
+def loss_figure(phase: str, terms: dict[str, tuple[np.ndarray, np.ndarray]]) -> bytes:
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.4, 3.6))
+    positive = all((y > 0).all() for _, y in terms.values())
+    for name, (x, y) in sorted(terms.items()):
+        ax.plot(x, y, label=name, lw=1.5, marker="." if len(x) < 30 else None)
+    if positive:
+        ax.set_yscale("log")
+    ax.set_xlabel("epoch")
+    ax.set_ylabel("loss" + (" (log scale)" if positive else ""))
+    ax.set_title(f"phase: {phase}")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    return fig_to_png(fig)
+
+
+def metrics_series(metrics: dict) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], dict[str, float]]:
+    """Per-frame series {name: (frames, values)} and means {name: value} from metrics.json.
+
+    Accepts per-frame values as a list of {"frame": i, name: value, ...} records or as {name: [values]},
+    under "per_frame" (or "frames"); means under "mean" (or "means").
+    """
+    per = metrics.get("per_frame", metrics.get("frames"))
+    series: dict[str, tuple[list, list]] = {}
+    if isinstance(per, list):
+        for n, rec in enumerate(per):
+            if not isinstance(rec, dict):
+                continue
+            f = _float(rec.get("frame"))
+            f = float(n) if f is None else f
+            for k, v in rec.items():
+                y = _float(v) if not isinstance(v, bool) else None
+                if k == "frame" or y is None:
+                    continue
+                xs, ys = series.setdefault(k, ([], []))
+                xs.append(f)
+                ys.append(y)
+    elif isinstance(per, dict):
+        frames = per.get("frame")
+        for k, vals in per.items():
+            if k == "frame" or not isinstance(vals, list):
+                continue
+            pts = [(float(frames[i]) if isinstance(frames, list) and i < len(frames) else float(i), _float(v))
+                   for i, v in enumerate(vals)]
+            pts = [(x, y) for x, y in pts if y is not None]
+            if pts:
+                series[k] = ([x for x, _ in pts], [y for _, y in pts])
+    mean_src = metrics.get("mean", metrics.get("means", {}))
+    means = {}
+    if isinstance(mean_src, dict):
+        means = {k: v for k, v in ((k, _float(v)) for k, v in mean_src.items()) if v is not None}
+    return {k: (np.asarray(x), np.asarray(y)) for k, (x, y) in series.items()}, means
+
+
+def metrics_figure(series: dict[str, tuple[np.ndarray, np.ndarray]], means: dict[str, float]) -> bytes:
+    plt = _plt()
+    names = sorted(series)
+    fig, axes = plt.subplots(len(names), 1, figsize=(6.4, 2.2 * len(names)), squeeze=False, sharex=True)
+    for ax, name in zip(axes[:, 0], names):
+        x, y = series[name]
+        ax.plot(x, y, marker="o", ms=3, lw=1.2)
+        if name in means:
+            ax.axhline(means[name], color="gray", ls="--", lw=1, label=f"mean {means[name]:.4g}")
+            ax.legend(fontsize=8)
+        ax.set_ylabel(name)
+        ax.grid(True, alpha=0.3)
+    axes[-1, 0].set_xlabel("frame")
+    fig.suptitle("per-frame error against the ground truth")
+    return fig_to_png(fig)
+
+
+def timings_figure(timings: dict[str, float]) -> bytes:
+    plt = _plt()
+    names = list(timings)
+    fig, ax = plt.subplots(figsize=(6.4, 0.5 + 0.4 * len(names)))
+    ax.barh(names, [timings[n] for n in names], color="#4a7ab5")
+    ax.invert_yaxis()
+    ax.set_xlabel("seconds")
+    ax.grid(True, axis="x", alpha=0.3)
+    return fig_to_png(fig)
+
+
+def contact_sheet(paths: list[Path], max_frames: int = 8, title: str = "") -> bytes:
+    """Up to `max_frames` evenly spaced frame images, one per row, each labelled with its file name."""
+    from saft.io_utils import read_image
+
+    plt = _plt()
+    if len(paths) > max_frames:
+        idx = np.unique(np.round(np.linspace(0, len(paths) - 1, max_frames)).astype(int))
+        paths = [paths[i] for i in idx]
+    imgs = [read_image(p) for p in paths]
+    aspect = max(im.shape[1] / im.shape[0] for im in imgs)
+    width = 9.0
+    fig, axes = plt.subplots(len(imgs), 1, figsize=(width, len(imgs) * (width / aspect + 0.35)), squeeze=False)
+    for ax, im, p in zip(axes[:, 0], imgs, paths):
+        ax.imshow(im[:, :, 0] if im.shape[2] == 1 else im[:, :, :3], cmap="gray" if im.shape[2] == 1 else None,
+                  interpolation="nearest")
+        ax.set_title(p.stem + (f" — {title}" if title else ""), fontsize=9)
+        ax.set_axis_off()
+    fig.tight_layout()
+    return fig_to_png(fig)
+
+
+def depth_figure(pairs: list[tuple[str, np.ndarray, np.ndarray]]) -> bytes:
+    """Per frame: rendered depth, target depth (one shared colour scale) and their signed difference in mm."""
+    plt = _plt()
+    fig, axes = plt.subplots(len(pairs), 3, figsize=(10.5, 3.0 * len(pairs)), squeeze=False)
+    for row, (label, rendered, target) in zip(axes, pairs):
+        both = np.concatenate([rendered[np.isfinite(rendered)], target[np.isfinite(target)]])
+        lo, hi = (float(both.min()), float(both.max())) if both.size else (0.0, 1.0)
+        diff_mm = (rendered - target) * 1000.0
+        lim = float(np.nanmax(np.abs(diff_mm))) if np.isfinite(diff_mm).any() else 1.0
+        ok = np.isfinite(diff_mm)
+        mean_abs = float(np.abs(diff_mm[ok]).mean()) if ok.any() else float("nan")
+        for ax, img, ttl, kw in (
+            (row[0], rendered, f"{label}: rendered depth (m)", dict(cmap="viridis", vmin=lo, vmax=hi)),
+            (row[1], target, f"{label}: target depth (m)", dict(cmap="viridis", vmin=lo, vmax=hi)),
+            (row[2], diff_mm, f"{label}: rendered − target (mm), mean |δ| {mean_abs:.2f}",
+             dict(cmap="RdBu_r", vmin=-max(lim, 1e-6), vmax=max(lim, 1e-6))),
+        ):
+            h = ax.imshow(np.ma.masked_invalid(img), interpolation="nearest", **kw)
+            ax.set_title(ttl, fontsize=8)
+            ax.set_axis_off()
+            fig.colorbar(h, ax=ax, fraction=0.046, pad=0.04)
+    fig.tight_layout()
+    return fig_to_png(fig)
