@@ -197,20 +197,21 @@ class _MatplotlibOrbit:
         self.size = (width, height)
 
     def draw(self, verts: np.ndarray, cam: Camera) -> np.ndarray:
-        # express the world in the camera's axes (x right, y up, z towards the viewer) and look down -z
-        R = cam.rotation
-        local = (verts - cam.center) @ R.T * np.array([1.0, -1.0, -1.0])
+        # camera frame (OpenCV) → matplotlib axes (x = right, y = forward/depth, z = up); the default
+        # viewer at azim −90°, elev 0° then sees exactly the camera's view (orthographic)
+        pc = cam.world_to_cam_points(verts)
+        local = np.stack([pc[:, 0], pc[:, 2], -pc[:, 1]], axis=1)
         tri = local[self.tris]
         n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-20)
-        shade = 0.35 + 0.65 * np.abs(n[:, 2])
-        self.coll.set_verts(tri[:, :, [0, 2, 1]])  # matplotlib's z (up) = camera y (up)
+        shade = 0.35 + 0.65 * np.abs(n[:, 1])
+        self.coll.set_verts(tri)
         self.coll.set_facecolor(np.clip(self.face_rgb * shade[:, None], 0, 1))
-        c = local.mean(axis=0)
+        c = 0.5 * (local.min(axis=0) + local.max(axis=0))
         r = float(np.abs(local - c).max()) * 1.1 + 1e-6
         self.ax.set_xlim(c[0] - r, c[0] + r)
-        self.ax.set_ylim(c[2] - r, c[2] + r)
-        self.ax.set_zlim(c[1] - r, c[1] + r)
+        self.ax.set_ylim(c[1] - r, c[1] + r)
+        self.ax.set_zlim(c[2] - r, c[2] + r)
         self.ax.view_init(elev=0, azim=-90)
         self.fig.canvas.draw()
         img = np.asarray(self.fig.canvas.buffer_rgba())[:, :, :3]
