@@ -499,7 +499,9 @@ def _antialias_impl(color, tid_img, depth_img, pos, tri, split=False):
     T = tri.shape[0]
     with torch.no_grad():
         sil = silhouette_edges(pos, tri, H, W)  # (B, T, 3)
-        tri_sil = sil.any(-1).reshape(-1)  # (B·T,)
+        silT = sil.reshape(-1, 3).T.contiguous()  # (3, B·T)
+        tri_sil = silT[0] | silT[1] | silT[2]  # (B·T,)
+        triT = tri.T.contiguous()
         x, y = _screen_xy(pos.detach(), H, W)  # (B, V)
         xf, yf = x.reshape(-1), y.reshape(-1)
         tflat = tid_img.reshape(-1)
@@ -524,35 +526,48 @@ def _antialias_impl(color, tid_img, depth_img, pos, tri, split=False):
             pf = torch.where(a_front, pa, pb)  # the nearer pixel
             po = torch.where(a_front, pb, pa)
             t_f = tflat.index_select(0, pf)
-            bf = torch.div(pf, H * W, rounding_mode="floor")
+            bf = torch.div(pf, H * W, rounding_mode="floor") if B > 1 else torch.zeros_like(pf)
             keep = torch.nonzero(tri_sil.index_select(0, bf * T + t_f)).squeeze(1)  # triangles with a silhouette edge
             pf, po, t_f, bf = (t.index_select(0, keep) for t in (pf, po, t_f, bf))
-            v0 = tri[t_f]  # (N, 3)
-            v1 = v0.roll(-1, -1)
-            gv0 = v0 + (bf * V)[:, None]
-            gv1 = v1 + (bf * V)[:, None]
-            x0, y0, x1, y1 = xf[gv0], yf[gv0], xf[gv1], yf[gv1]  # (N, 3) edge end points
-            rem_f = pf - bf * H * W
-            fi = torch.div(rem_f, W, rounding_mode="floor").to(x.dtype)
-            fj = (rem_f % W).to(x.dtype)
-            dx, dy = x1 - x0, y1 - y0
+            # structure-of-arrays over the three edges k (vertex k → k+1) of the front triangle
+            bt = t_f if B == 1 else bf * T + t_f
+            vk = [triT[k].index_select(0, t_f) for k in range(3)]
+            if B > 1:
+                vk = [v + bf * V for v in vk]
+            xk = [xf.index_select(0, v) for v in vk]
+            yk = [yf.index_select(0, v) for v in vk]
+            rem_f = pf if B == 1 else pf - bf * H * W
+            fi_l = torch.div(rem_f, W, rounding_mode="floor")
+            fi = fi_l.to(x.dtype)
+            fj = (rem_f - fi_l * W).to(x.dtype)
             sgn = torch.where(po > pf, 1.0, -1.0).to(x.dtype)
-            if axis == 0:  # crossing of row fi, edges more vertical than horizontal
-                major = (dy.abs() >= dx.abs()) & (dy != 0)
-                tpar = (fi[:, None] - y0) / torch.where(dy == 0, torch.ones_like(dy), dy)
-                tt = (x0 + tpar * dx - fj[:, None]) * sgn[:, None]
-            else:  # crossing of column fj, edges more horizontal than vertical
-                major = dx.abs() > dy.abs()
-                tpar = (fj[:, None] - x0) / torch.where(dx == 0, torch.ones_like(dx), dx)
-                tt = (y0 + tpar * dy - fi[:, None]) * sgn[:, None]
-            ok = sil.reshape(-1, 3)[bf * T + t_f] & major
-            ok &= (tpar >= 0) & (tpar <= 1) & (tt >= 0) & (tt <= 1)
-            has = ok.any(-1)
-            k = torch.argmax(ok.to(torch.uint8), dim=-1)
+            has = k_first = None
+            for k in range(3):
+                x0, y0, x1, y1 = xk[k], yk[k], xk[(k + 1) % 3], yk[(k + 1) % 3]
+                dx, dy = x1 - x0, y1 - y0
+                if axis == 0:  # crossing of row fi, edges more vertical than horizontal
+                    major = (dy.abs() >= dx.abs()) & (dy != 0)
+                    tpar = (fi - y0) / torch.where(dy == 0, torch.ones_like(dy), dy)
+                    tt = (x0 + tpar * dx - fj) * sgn
+                else:  # crossing of column fj, edges more horizontal than vertical
+                    major = dx.abs() > dy.abs()
+                    tpar = (fj - x0) / torch.where(dx == 0, torch.ones_like(dx), dx)
+                    tt = (y0 + tpar * dy - fi) * sgn
+                ok = silT[k].index_select(0, bt) & major
+                ok &= (tpar >= 0) & (tpar <= 1) & (tt >= 0) & (tt <= 1)
+                if has is None:
+                    has, k_first = ok, torch.zeros_like(vk[0])
+                else:  # the first edge that qualifies (as argmax over k)
+                    k_first = torch.where(has, k_first, torch.full_like(k_first, k))
+                    has = has | ok
             sel = torch.nonzero(has).squeeze(1)
             if sel.numel():
-                ks = k[sel]
-                pairs.append((axis, pf[sel], po[sel], gv0[sel, ks], gv1[sel, ks], fi[sel], fj[sel], sgn[sel]))
+                ks = k_first.index_select(0, sel)
+                v_s = [v.index_select(0, sel) for v in vk]
+                e0 = torch.where(ks == 0, v_s[0], torch.where(ks == 1, v_s[1], v_s[2]))
+                e1 = torch.where(ks == 0, v_s[1], torch.where(ks == 1, v_s[2], v_s[0]))
+                pairs.append((axis, pf.index_select(0, sel), po.index_select(0, sel), e0, e1,
+                              fi.index_select(0, sel), fj.index_select(0, sel), sgn.index_select(0, sel)))
     if not pairs:
         return color
     posf = pos.reshape(-1, 4)
