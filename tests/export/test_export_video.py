@@ -1,0 +1,66 @@
+"""Videos: the files exist, are H.264 mp4 of even size, and hold the expected number of frames."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from saft.export import export_command
+from saft.export import video as V
+from saft.result import read_result
+
+
+def test_comparison_videos(result_dir, tmp_path):
+    res = read_result(result_dir)
+    path, n = V.comparison_video(res, tmp_path / "cmp.mp4")
+    assert n == res.num_frames and V.count_video_frames(path) == res.num_frames
+    path, n = V.comparison_video(res, tmp_path / "app.mp4", material=True)
+    assert V.count_video_frames(path) == res.num_frames
+
+
+def test_odd_sizes_are_padded(tmp_path):
+    frames = [np.full((33, 47, 3), i / 4, np.float32) for i in range(4)]
+    path, n = V.write_mp4(tmp_path / "odd.mp4", frames, fps=10)
+    import imageio.v3 as iio
+
+    back = iio.imread(path, plugin="FFMPEG")
+    assert back.shape == (4, 34, 48, 3)
+    assert abs(int(back[2, 10, 10, 0]) - 128) < 6
+
+
+@pytest.mark.parametrize("renderer", ["auto", "matplotlib"])
+def test_orbit_video(result_dir, tmp_path, renderer):
+    res = read_result(result_dir)
+    frames, n, fps, used = V.orbit_frames(res, 64, 48, min_seconds=0.0, renderer=renderer)
+    assert n == res.num_frames and fps == pytest.approx(min(1 / res.frame_dt, 30.0))
+    path, count = V.write_mp4(tmp_path / f"orbit_{renderer}.mp4", frames, fps)
+    assert V.count_video_frames(path) == n
+    import imageio.v3 as iio
+
+    first = iio.imread(path, plugin="FFMPEG", index=0)
+    assert first.shape == (48, 64, 3)
+    assert (np.abs(first.astype(int) - 237).max(axis=2) > 40).mean() > 0.05  # the cloth covers part of it
+
+
+def test_orbit_cameras_circle_the_cloth(result_dir):
+    res = read_result(result_dir)
+    cams = V.orbit_cameras(res, 8, 64, 48)
+    centre = 0.5 * (res.vertices.reshape(-1, 3).min(0) + res.vertices.reshape(-1, 3).max(0))
+    d = [np.linalg.norm(c.center - centre) for c in cams]
+    np.testing.assert_allclose(d, d[0], rtol=1e-9)
+    # half a turn about the up axis (−y here: gravity is +y): horizontal offset reversed, height kept
+    np.testing.assert_allclose(cams[4].center - centre, (cams[0].center - centre) * [-1, 1, -1], atol=1e-9)
+    for c in cams:  # the whole cloth is in view from everywhere
+        uv, z = c.project(res.vertices.reshape(-1, 3))
+        assert (z > 0).all() and (uv >= -0.5).all() and (uv[:, 0] <= 63.5).all() and (uv[:, 1] <= 47.5).all()
+
+
+def test_export_video_command(bare_result_dir, monkeypatch):
+    # keep the orbit short and small in the command test
+    orig = V.orbit_video
+    monkeypatch.setattr(V, "orbit_video", lambda res, out, **kw: orig(res, out, width=64, height=48, min_seconds=0))
+    written = export_command(bare_result_dir, video=True)
+    names = sorted(p.name for p in written)
+    assert names == ["comparison.mp4", "orbit.mp4"]  # no material/renders → no appearance video
+    for p in written:
+        assert p.parent == bare_result_dir / "export" and V.count_video_frames(p) == 6
