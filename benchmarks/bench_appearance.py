@@ -157,7 +157,7 @@ def main(argv=None) -> int:
     print(f"synthetic appearance benchmark: {args.frames} frames ({len(train)} fit, {len(held)} held out), "
           f"{args.size}x{args.size} px, motion={motion_used}, device={args.device}, profile={cfg.profile} "
           f"(epochs={cfg.epochs}, frames/epoch={cfg.frames_per_epoch or 'all'}, scale={cfg.image_scale}, "
-          f"maps={cfg.maps} {cfg.tile_size}px tiles, spp={cfg.spp}, loss={cfg.loss}); "
+          f"maps={cfg.maps} " + (f"{cfg.tile_size}px tiles" if cfg.maps == "decoder" else f"{cfg.texel_size}px") + f", spp={cfg.spp}, loss={cfg.loss}); "
           f"ground truth at {args.gt_spp} spp, evaluation at {args.eval_spp} spp; data {t_data:.0f} s")
     print("| case | PSNR held-out (dB) | PSNR train (dB) | PSNR novel 45° (dB) | diffuse RMSE (scaled) | scale | "
           "diffuse RMSE (raw) | fit wall (s) | fit CPU (s) |")
