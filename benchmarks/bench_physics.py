@@ -2,9 +2,11 @@
 
 Rollouts of the R1 template (32x32 quads, 1024 vertices; read from ../shared) and of synthetic 16x16 and
 64x64 grids: 50 frames x 4 substeps, forward and forward+backward, with 1 and 2 torch threads.
-Last line (machine-readable): physics_fwd_bwd_s_32x32_50f=<seconds> (median of the runs, best thread count).
+Reports wall and CPU (process) seconds, medians of --repeats runs, one table row per size and thread count.
+Last line (machine-readable): physics_fwd_bwd_s_32x32_50f=<seconds> (median wall, best thread count).
 
-    python benchmarks/bench_physics.py [--runs 3] [--frames 50] [--quick]
+    python benchmarks/bench_physics.py [--repeats 3] [--sizes 16x16,32x32,64x64] [--threads 1,2]
+                                       [--frames 50] [--compile {0,1,env}]
 """
 
 from __future__ import annotations
@@ -46,7 +48,8 @@ def load_case(name: str):
     return f"{name} (grid)", v, q
 
 
-def run_once(topo, frames, backward: bool, seed=0):
+def run_once(topo, frames, backward: bool, seed=0, compile=None):
+    """One rollout (and backward); returns (wall s, CPU s, solver stats)."""
     V = topo.num_vertices
     g = torch.Generator().manual_seed(seed)
     p = PhysicsParams.default(frames, V)
@@ -56,36 +59,55 @@ def run_once(topo, frames, backward: bool, seed=0):
         t_.requires_grad_(backward)
     w = torch.randn(frames, V, 3, generator=g, dtype=torch.float64)
     stats = {}
-    t0 = time.perf_counter()
-    pos = rollout(topo, topo.template, None, p, num_frames=frames, stats=stats)
+    c0, t0 = time.process_time(), time.perf_counter()
+    pos = rollout(topo, topo.template, None, p, num_frames=frames, stats=stats, compile=compile)
     if backward:
         (pos * w).sum().backward()
-    return time.perf_counter() - t0, stats
+    return time.perf_counter() - t0, time.process_time() - c0, stats
+
+
+def _fmt_stats(st):
+    s = f"its {st.get('iterations', 0)}/{st.get('solves', 0)} fact {st.get('factorizations', 0)}"
+    if "bwd_solves" in st:
+        s += f" | bwd its {st['bwd_iterations']}/{st['bwd_solves']} fact {st['bwd_factorizations']}"
+    return s
 
 
 def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--runs", type=int, default=3)
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--repeats", "--runs", dest="repeats", type=int, default=3, help="runs per cell (median)")
     ap.add_argument("--frames", type=int, default=50)
-    ap.add_argument("--cases", default="16x16,32x32,64x64")
-    ap.add_argument("--threads", default="1,2")
+    ap.add_argument("--sizes", "--cases", dest="sizes", default="16x16,32x32,64x64",
+                    help="comma list of NxN (32x32 is the R1 template when ../shared has it)")
+    ap.add_argument("--threads", default="1,2", help="comma list of torch thread counts")
+    ap.add_argument("--compile", choices=("0", "1", "env"), default="env",
+                    help="torch.compile the element kernels (env: SAFT_PHYSICS_COMPILE, off by default)")
     args = ap.parse_args()
+    compile_flag = None if args.compile == "env" else args.compile == "1"
     threads = [int(t) for t in args.threads.split(",")]
-    print(f"saft.physics benchmark: {args.frames} frames x 4 substeps, float64, median of {args.runs} runs")
-    print(f"{'case':16s} {'V':>6s} {'thr':>3s} {'fwd_s':>8s} {'fwd+bwd_s':>10s}  solver (fwd+bwd run)")
+    print(f"saft.physics benchmark: {args.frames} frames x 4 substeps, float64, median of {args.repeats} runs, "
+          f"compile={compile_flag if compile_flag is not None else 'env'}; wall = elapsed, cpu = process time "
+          f"(the machine may be shared: cpu is the steadier number)")
+    hdr = (f"{'case':16s} {'V':>5s} {'thr':>3s} {'fwd_wall':>9s} {'fwd_cpu':>8s} {'fb_wall':>8s} {'fb_cpu':>7s}"
+           f"  solver (last fwd+bwd run)")
+    print(hdr)
+    print("-" * len(hdr))
     best32 = None
-    for case in args.cases.split(","):
+    for case in args.sizes.split(","):
         label, verts, quads = load_case(case)
         topo = ClothTopology.from_quads(verts, quads)
         for nt in threads:
             torch.set_num_threads(nt)
-            run_once(topo, 3, True)  # warm-up
-            fwd = statistics.median(run_once(topo, args.frames, False)[0] for _ in range(args.runs))
-            res = [run_once(topo, args.frames, True) for _ in range(args.runs)]
-            fb = statistics.median(r[0] for r in res)
-            print(f"{label:16s} {topo.num_vertices:6d} {nt:3d} {fwd:8.3f} {fb:10.3f}  {res[-1][1]}", flush=True)
+            run_once(topo, 3, True, compile=compile_flag)  # warm-up (and compilation, if on)
+            fwd = [run_once(topo, args.frames, False, compile=compile_flag) for _ in range(args.repeats)]
+            fb = [run_once(topo, args.frames, True, compile=compile_flag) for _ in range(args.repeats)]
+            med = statistics.median
+            fw_w, fw_c = med(r[0] for r in fwd), med(r[1] for r in fwd)
+            fb_w, fb_c = med(r[0] for r in fb), med(r[1] for r in fb)
+            print(f"{label:16s} {topo.num_vertices:5d} {nt:3d} {fw_w:9.3f} {fw_c:8.3f} {fb_w:8.3f} {fb_c:7.3f}"
+                  f"  {_fmt_stats(fb[-1][2])}", flush=True)
             if case == "32x32":
-                best32 = fb if best32 is None else min(best32, fb)
+                best32 = fb_w if best32 is None else min(best32, fb_w)
     if best32 is not None:
         print(f"physics_fwd_bwd_s_32x32_{args.frames}f={best32:.3f}")
 

@@ -226,3 +226,33 @@ def test_cuda_matches_cpu():
     assert torch.allclose(out["cpu"][0], out["cuda"][0], atol=1e-9)
     for a, b in zip(out["cpu"][1], out["cuda"][1]):
         assert torch.allclose(a, b, rtol=1e-5, atol=1e-7 * a.abs().max().item())
+
+
+def test_kernel_compile_failure_falls_back_to_eager(monkeypatch):
+    """compile=True with a broken compiler warns once and gives the eager result; backward solver
+    counters are reported as bwd_* and the adjoint reuses the forward's kept factors."""
+    import saft.physics.kernels as K
+
+    t, x0, v0, p, W = _setup()
+    for val in p.tensors():
+        val.requires_grad_(True)
+    st = {}
+    ref = rollout(t, x0, v0, p, num_frames=N, tol=1e-12, stats=st, compile=False)
+    (ref * W).sum().backward()
+    g_ref = [x.grad.clone() for x in p.tensors()]
+    assert st["bwd_solves"] == st["solves"] and st["bwd_factorizations"] == 0
+
+    def broken(*a, **k):
+        raise RuntimeError("no compiler here")
+
+    monkeypatch.setattr(K.torch, "compile", broken)
+    monkeypatch.setattr(K, "_compiled", {})
+    monkeypatch.setattr(K, "_compile_failed", False)
+    for val in p.tensors():
+        val.grad = None
+    with pytest.warns(RuntimeWarning, match="running them eagerly"):
+        pos = rollout(t, x0, v0, p, num_frames=N, tol=1e-12, compile=True)
+    (pos * W).sum().backward()
+    assert torch.equal(pos.detach(), ref.detach())
+    for a, b in zip(g_ref, [x.grad for x in p.tensors()]):
+        assert torch.equal(a, b)

@@ -83,10 +83,10 @@ class StepKernels:
     def _call(self, name, fn, *args):
         global _compile_failed
         if self.use_compile and not _compile_failed:
-            cf = _compiled.get(name)
-            if cf is None:
-                cf = _compiled[name] = torch.compile(fn, dynamic=False)
             try:
+                cf = _compiled.get(name)
+                if cf is None:
+                    cf = _compiled[name] = torch.compile(fn, dynamic=False)
                 return cf(self.mode, self.nnz, *args, *self.geo)
             except Exception as exc:  # noqa: BLE001 - any compiler problem: stay correct, run eagerly
                 _compile_failed = True

@@ -13,6 +13,7 @@ path); on breakdown or non-convergence it falls back to a dense solve (correct f
 
 from __future__ import annotations
 
+import time
 import warnings
 
 import numpy as np
@@ -44,7 +45,7 @@ class SolveStats:
 class ReusedLUSolver:
     """CPU: CG preconditioned by a reused sparse LU factorisation, refactorised when needed."""
 
-    def __init__(self, indptr: np.ndarray, indices: np.ndarray, tol: float = 1e-6, max_iter: int = 40,
+    def __init__(self, indptr: np.ndarray, indices: np.ndarray, tol: float = 1e-6, max_iter: int = 60,
                  refactor_after: int = 10, precond_float32: bool = True, stats: SolveStats | None = None,
                  keep_factors_bytes: int = 256 * 2**20):
         self.indptr = indptr.astype(np.int32)
@@ -59,7 +60,10 @@ class ReusedLUSolver:
         self.stats = stats if stats is not None else SolveStats()
         # factors made during the forward pass, by substep: the adjoint solve of substep i (same matrix
         # A_i) is preconditioned by the factor made nearest to i instead of a stale or fresh one
+        self._t_fact = None  # seconds of the last factorisation
+        self._t_iter = None  # running mean seconds per CG iteration
         self.step = None
+        self.adjoint_mode = False
         self.keep_factors_bytes = keep_factors_bytes
         self.factors: dict[int, tuple] = {}
         self._factor_bytes = 0
@@ -68,6 +72,8 @@ class ReusedLUSolver:
         """Tag the following solves with substep ``i``; with ``select`` switch to the kept factor made
         nearest to it (the backward pass walks the substeps in reverse)."""
         self.step = i
+        # the adjoint pass reuses kept factors and refactorises only when CG fails
+        self.adjoint_mode = select
         if select and self.factors and i is not None:
             j = min(self.factors, key=lambda k: abs(k - i))
             self.lu, self.lu_f32 = self.factors[j]
@@ -93,6 +99,7 @@ class ReusedLUSolver:
         # the pattern and the values are symmetric, so the CSR arrays are also a valid CSC of A
         # the preconditioner is factorised in float32 (half the memory traffic in the triangular
         # solves); CG itself runs in float64, so the solution accuracy is unaffected
+        c0 = time.perf_counter()
         self.lu_f32 = self.precond_float32 and not pivoting
         fdata = data.astype(np.float32) if self.lu_f32 else data
         A = sp.csc_matrix((fdata, self.indices, self.indptr), shape=(self.n, self.n), copy=False)
@@ -103,6 +110,7 @@ class ReusedLUSolver:
             self.lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                                 options=dict(SymmetricMode=True))
         self.stats.factorizations += 1
+        self._t_fact = time.perf_counter() - c0
         self._keep()
 
     def solve(self, data: np.ndarray, b: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
@@ -113,9 +121,13 @@ class ReusedLUSolver:
             return np.zeros_like(b)
         atol = self.tol * bnorm
         if self.lu is not None:
+            c0 = time.perf_counter()
             x, its = self._pcg(A, b, x0, atol)
+            if its:
+                t_it = (time.perf_counter() - c0) / its
+                self._t_iter = t_it if self._t_iter is None else 0.8 * self._t_iter + 0.2 * t_it
             if x is not None:
-                if its > self.refactor_after:
+                if its > self._refactor_threshold() and not (self.adjoint_mode and self.factors):
                     self.factorize(data)
                 return x
             self.stats.fallbacks += 1
@@ -139,6 +151,13 @@ class ReusedLUSolver:
                     break
                 x += self._solve_lu(r)
         return x
+
+    def _refactor_threshold(self) -> int:
+        # cost-aware: on big meshes a factorisation costs as much as dozens of CG iterations, so the
+        # factor is kept longer (iterations beyond the fresh-factor count must pay for a refactorisation)
+        if self._t_fact is None or not self._t_iter:
+            return self.refactor_after
+        return max(self.refactor_after, min(int(0.25 * self._t_fact / self._t_iter), self.max_iter - 5))
 
     def _solve_lu(self, r):
         return self.lu.solve(r.astype(np.float32) if self.lu_f32 else r).astype(np.float64)
