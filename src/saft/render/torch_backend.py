@@ -12,6 +12,13 @@ Layout of the work (all batched, no Python loop over triangles or pixels):
   positions, so gradients reach the vertex positions as in nvdiffrast.
 * interpolate / texture (autograd): gathers on the covered pixels only; texture is bilinear with
   trilinear mip-mapping (``torch.nn.functional.grid_sample`` per level on the pixels that use it).
+* render_cloth's path (cloth._render_cloth_torch) uses the compact kernels at the end of this file:
+  plane_table / plane_interp (barycentrics, attributes and their screen derivatives as ratios of affine
+  functions of the pixel position: one per-triangle row of plane coefficients, one gather per pixel, one
+  index_add in the backward) and texture_fast (clamp-mode trilinear lookup, structure-of-arrays, level 0
+  in the caller's HWC layout); equal to the primitives above in value and gradient (tested).
+  On CPU, small-dimension reductions, advanced indexing and strided (transposing) copies are several
+  times slower than contiguous elementwise ops and 1-D index_select/index_add: the kernels avoid them.
 * antialias: nvdiffrast's analytic scheme — for each pair of horizontally or vertically adjacent pixels
   with different triangles, a silhouette edge (mesh boundary, or an edge between a front- and a back-facing
   triangle: folds) of the nearer triangle that crosses the segment between the two centres blends the
