@@ -151,6 +151,12 @@ def test_fast_texture_matches_grid_sample_path(shape):
             torch.testing.assert_close(got, ref, atol=1e-12, rtol=0)
             torch.testing.assert_close(g_got[0], g_ref[0], atol=1e-12, rtol=0)
             torch.testing.assert_close(g_got[1], g_ref[1], atol=1e-10, rtol=0)
+    # a texture in another dtype than the coordinates (render_cloth allows it)
+    u32 = uv.detach()[:, 0].float().requires_grad_(True)
+    got = tb.texture_fast(tex, u32, uv.detach()[:, 1].float(), None)
+    (got * torch.rand_like(got)).sum().backward()
+    assert u32.grad.dtype == torch.float32 and tex.grad.dtype == torch.float64
+    tex.grad = None
     u = uv.detach()[:7, 0].clone().requires_grad_(True)
     v = uv.detach()[:7, 1].clone().requires_grad_(True)
     da = torch.rand(4, 7, dtype=torch.float64) * 0.5

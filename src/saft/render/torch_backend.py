@@ -1073,6 +1073,7 @@ class _TexFn(torch.autograd.Function):
         ctx.shapes = [t.shape for t in levels]
         ctx.layout = [(la, lb) for _, la, lb in layout]
         ctx.needs = ctx.needs_input_grad[:3]
+        ctx.uv_dtype = u.dtype
         return out
 
     @staticmethod
@@ -1082,8 +1083,8 @@ class _TexFn(torch.autograd.Function):
         g = g.contiguous()  # (C, P)
         C = g.shape[0]
         g_lvl = [None] * len(shapes)
-        gu = g.new_zeros(g.shape[1]) if need_u else None
-        gv = g.new_zeros(g.shape[1]) if need_v else None
+        gu = g.new_zeros(g.shape[1], dtype=ctx.uv_dtype) if need_u else None  # the texture's dtype may differ
+        gv = g.new_zeros(g.shape[1], dtype=ctx.uv_dtype) if need_v else None
         def level_grad(level):  # zero gradient of a level as a (C, h, w) view of its storage layout
             _, h, w = shapes[level]
             buf = g.new_zeros(h * w * C)
