@@ -3,6 +3,8 @@
     saft demo [--out DIR]                       synthetic scene → reconstruction → evaluation table
     saft reconstruct SCENE --out DIR            texture, shape (and appearance) of a scene's cloth
     saft evaluate RESULT_DIR --gt GT_OR_SCENE   CD2, CD1, p2s per frame and mean; writes metrics.json
+    saft report DIR                             self-contained HTML report of a result
+    saft export DIR [--video] [--gltf F.glb] [--sequence obj|ply]
     saft inspect SCENE                          check a scene and print what saft reads from it
     saft info                                   versions, devices and rendering backends available
 
@@ -105,6 +107,23 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_report(args: argparse.Namespace) -> int:
+    from saft.export import report_command
+
+    path = report_command(args.result_dir, args.out)
+    print(f"wrote {path}")
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from saft.export import export_command
+
+    for path in export_command(args.result_dir, video=args.video, gltf=args.gltf, sequence=args.sequence,
+                               out_dir=args.out):
+        print(f"wrote {path}")
+    return 0
+
+
 def cmd_info(args: argparse.Namespace) -> int:
     import platform
 
@@ -159,6 +178,24 @@ def build_parser() -> argparse.ArgumentParser:
                    help="evaluate the frames present when the result has fewer frames than the ground truth")
     _add_common(p)
     p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("report", help="write a self-contained HTML report of a result folder")
+    p.add_argument("result_dir", type=Path)
+    p.add_argument("--out", type=Path, default=None, help="default RESULT_DIR/report.html")
+    _add_common(p)
+    p.set_defaults(func=cmd_report)
+
+    p = sub.add_parser("export", help="videos, an animated glTF (.glb) or a mesh sequence of a result",
+                       description="Export a result folder: --video (mp4s of target | re-render and an orbit), "
+                                   "--gltf FILE.glb (animated cloth with its material, opens in Blender), "
+                                   "--sequence obj|ply (one mesh per frame).")
+    p.add_argument("result_dir", type=Path)
+    p.add_argument("--video", action="store_true", help="write comparison/appearance/orbit mp4 videos")
+    p.add_argument("--gltf", type=Path, default=None, metavar="FILE.glb", help="write an animated glTF binary")
+    p.add_argument("--sequence", choices=["obj", "ply"], default=None, help="write one mesh per frame")
+    p.add_argument("--out", type=Path, default=None, help="folder for videos and sequences (default DIR/export)")
+    _add_common(p)
+    p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("inspect", help="check a scene and print what saft reads from it")
     p.add_argument("scene", type=Path, help="a native scene folder or a SAFT/PG-SfT scene .json")
