@@ -126,3 +126,9 @@ def result_dir(tmp_path: Path) -> Path:
 def bare_result_dir(tmp_path: Path) -> Path:
     """Only what phase 1–2 write without ground truth: no material/, metrics.json, depth/."""
     return build_result(tmp_path / "bare", with_material=False, with_metrics=False, with_depth=False)
+
+
+@pytest.fixture(scope="module")
+def shared_result_dir(tmp_path_factory) -> Path:
+    """A full result built once per test module (tests using it must not modify it)."""
+    return build_result(tmp_path_factory.mktemp("shared") / "result")
