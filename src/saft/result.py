@@ -13,7 +13,8 @@
       timings.json           seconds per phase
       metrics.json           with ground truth: per-frame and mean CD2, CD1, p2s (saft evaluate)
       depth/frame_000.npz    optional, with depth ground truth: arrays `rendered` and `target`, H×W depth in
-                             metres along the camera z axis of the working camera, NaN where there is no cloth
+                             metres along the camera z axis of the working camera, NaN or 0 where there is no cloth
+                             (the pairs saft evaluate compares for depth_cm)
       material/              phase 3: diffuse.png, roughness.png, metallic.png, envmap.exr (+ envmap.png),
                              renders/frame_000.png re-renders, novel_view.png
       checkpoint/            state for --resume (removed only by the user)
@@ -67,7 +68,7 @@ def list_depth_files(result_dir: str | Path) -> list[Path]:
 
 
 def read_depth_pair(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """(rendered, target) depth maps (H×W float, metres, NaN = no cloth) of one depth/frame_*.npz."""
+    """(rendered, target) depth maps (H×W float, metres, NaN or 0 = no cloth) of one depth/frame_*.npz."""
     path = Path(path)
     try:
         with np.load(path) as data:

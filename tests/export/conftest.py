@@ -101,18 +101,21 @@ def build_result(folder: Path, *, with_material: bool = True, with_metrics: bool
         write_image(folder / "material" / "envmap.png", _checker(16, 32, 2))
         write_image(folder / "material" / "novel_view.png", _checker(40, 50, 5))
         for f in range(len(frames)):
-            write_image(folder / "material" / "renders" / f"frame_{f:03d}.png", _checker(40, 150) * 0.9)
-    if with_metrics:
-        per = [{"frame": f, "CD2": 1.0 + 0.1 * f, "CD1": 0.5 + 0.01 * f, "p2s": 2.0 - 0.1 * f}
-               for f in range(len(frames))]
-        (folder / "metrics.json").write_text(json.dumps({"per_frame": per, "mean": {"CD2": 1.25, "CD1": 0.525,
-                                                                                    "p2s": 1.75}}))
+            write_image(folder / "material" / "renders" / f"frame_{f:03d}.png", _checker(40, 100) * 0.9)
+            write_image(folder / "material" / "novel_view" / f"frame_{f:03d}.png", _checker(40, 50) * 0.8)
+    if with_metrics:  # the format saft.evaluate writes
+        n = len(frames)
+        (folder / "metrics.json").write_text(json.dumps({
+            "num_frames": n, "seed": 0, "units": {"cd2_1e-4m2": "1e-4 m^2", "cd1_cm": "cm", "p2s_l1_mm": "mm"},
+            "per_frame": {"cd2_1e-4m2": [1.0 + 0.1 * f for f in range(n)], "cd1_cm": [0.5 + 0.01 * f for f in range(n)],
+                          "p2s_l1_mm": [2.0 - 0.1 * f for f in range(n)], "num_gt_points": [1000] * n},
+            "mean": {"cd2_1e-4m2": 1.25, "cd1_cm": 0.525, "p2s_l1_mm": 1.75, "num_gt_points": 1000}}))
     if with_depth:
         (folder / "depth").mkdir()
         for f in (0, 3):
             gt = np.full((48, 64), np.nan, np.float32)
             gt[10:40, 12:52] = 1.0 + 0.01 * f
-            rendered = gt + 0.003 * rng.normal(size=gt.shape).astype(np.float32)
+            rendered = np.nan_to_num(gt + 0.003 * rng.normal(size=gt.shape).astype(np.float32))  # 0 = empty
             np.savez(folder / "depth" / f"frame_{f:03d}.npz", rendered=rendered, target=gt)
     return folder
 

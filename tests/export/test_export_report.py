@@ -41,10 +41,22 @@ def test_report_content(full_report):
     # self-contained: no external resources of any kind
     assert not re.search(r'(src|href)="(?!data:|#)', text)
     assert "http://" not in text and "https://" not in text
-    assert text.count('<img src="data:image/png;base64,') == 13
+    assert text.count('<img src="data:image/png;base64,') == 14
     assert "wave &lt;test&gt; &amp; co" in text  # config shown, HTML-escaped
     assert "constant_acceleration" in text and "substeps" in text
     assert "12.25 s" in text
+    assert "cd2_1e-4m2 (1e-4 m^2)" in text and "num_gt_points" not in text  # units shown, counts not plotted
+
+
+def test_metrics_series_formats():
+    from saft.export.figures import metrics_series
+
+    records = {"per_frame": [{"frame": 2, "CD2": 1.0, "note": "x"}, {"frame": 3, "CD2": 2.0}], "mean": {"CD2": 1.5}}
+    series, means = metrics_series(records)
+    assert list(series) == ["CD2"] and series["CD2"][0].tolist() == [2.0, 3.0] and means == {"CD2": 1.5}
+    lists = {"per_frame": {"cd1_cm": [1.0, float("nan"), 3.0]}, "units": {"cd1_cm": "cm"}}
+    series, means = metrics_series(lists)
+    assert series["cd1_cm (cm)"][0].tolist() == [0.0, 2.0] and means == {}
 
 
 def test_report_without_optional_parts(bare_result_dir, tmp_path):
@@ -262,7 +274,7 @@ def test_report_in_headless_chromium(browser, full_report):
     assert errors == []
     assert info["title"].startswith("saft report")
     assert info["sections"] == SECTIONS
-    assert info["figures"] == len(info["images"]) == 13
+    assert info["figures"] == len(info["images"]) == 14
     bad = [i for i, (complete, w, h) in enumerate(info["images"]) if not (complete and w > 0 and h > 0)]
     assert bad == [], f"images that did not decode: {bad}"
 

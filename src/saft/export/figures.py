@@ -93,6 +93,7 @@ def metrics_series(metrics: dict) -> tuple[dict[str, tuple[np.ndarray, np.ndarra
     under "per_frame" (or "frames"); means under "mean" (or "means").
     """
     per = metrics.get("per_frame", metrics.get("frames"))
+    units = metrics.get("units") if isinstance(metrics.get("units"), dict) else {}
     series: dict[str, tuple[list, list]] = {}
     if isinstance(per, list):
         for n, rec in enumerate(per):
@@ -121,7 +122,13 @@ def metrics_series(metrics: dict) -> tuple[dict[str, tuple[np.ndarray, np.ndarra
     means = {}
     if isinstance(mean_src, dict):
         means = {k: v for k, v in ((k, _float(v)) for k, v in mean_src.items()) if v is not None}
-    return {k: (np.asarray(x), np.asarray(y)) for k, (x, y) in series.items()}, means
+
+    def label(k: str) -> str:
+        return f"{k} ({units[k]})" if k in units else k
+
+    keep = [k for k in series if not k.startswith("num_")]  # counts (e.g. num_gt_points) are not errors
+    return ({label(k): (np.asarray(series[k][0]), np.asarray(series[k][1])) for k in keep},
+            {label(k): v for k, v in means.items() if not k.startswith("num_")})
 
 
 def metrics_figure(series: dict[str, tuple[np.ndarray, np.ndarray]], means: dict[str, float]) -> bytes:
@@ -178,6 +185,8 @@ def depth_figure(pairs: list[tuple[str, np.ndarray, np.ndarray]]) -> bytes:
     plt = _plt()
     fig, axes = plt.subplots(len(pairs), 3, figsize=(10.5, 3.0 * len(pairs)), squeeze=False)
     for row, (label, rendered, target) in zip(axes, pairs):
+        rendered = np.where(rendered > 0, rendered, np.nan)  # 0 = no surface, like NaN
+        target = np.where(target > 0, target, np.nan)
         both = np.concatenate([rendered[np.isfinite(rendered)], target[np.isfinite(target)]])
         lo, hi = (float(both.min()), float(both.max())) if both.size else (0.0, 1.0)
         diff_mm = (rendered - target) * 1000.0

@@ -184,6 +184,11 @@ def _section_renders(res: Result, max_frames: int) -> str:
     if mat:
         parts.append(_figure(figures.contact_sheet(mat, max_frames, "appearance phase"),
                              f"material/renders/: {min(len(mat), max_frames)} of {len(mat)} frames"))
+    novel = res.folder / "material" / "novel_view"
+    novel_files = sorted(novel.glob("frame_*.png")) if novel.is_dir() else []
+    if novel_files:
+        parts.append(_figure(figures.contact_sheet(novel_files, max_frames, "novel view"),
+                             f"material/novel_view/: {min(len(novel_files), max_frames)} of {len(novel_files)} frames"))
     return "".join(parts) or _none("no renders/frame_*.png")
 
 
