@@ -71,18 +71,24 @@ def loss_series(log_rows: list[dict]) -> dict[str, dict[str, tuple[np.ndarray, n
 
 
 def loss_figure(phase: str, terms: dict[str, tuple[np.ndarray, np.ndarray]]) -> bytes:
+    """Every loss term of a phase against the epoch, on a log scale (terms differ by orders of magnitude);
+    zero or negative values are left out of the log plot, terms that are never positive are listed."""
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(6.4, 3.6))
-    positive = all((y > 0).all() for _, y in terms.values())
+    fig, ax = plt.subplots(figsize=(6.4, 3.6), layout="constrained")
+    skipped = []
     for name, (x, y) in sorted(terms.items()):
-        ax.plot(x, y, label=name, lw=1.5, marker="." if len(x) < 30 else None)
-    if positive:
-        ax.set_yscale("log")
+        ok = y > 0
+        if not ok.any():
+            skipped.append(name)
+            continue
+        ax.plot(x[ok], y[ok], label=name, lw=1.5, marker="." if ok.sum() < 30 else None)
+    ax.set_yscale("log")
     ax.set_xlabel("epoch")
-    ax.set_ylabel("loss" + (" (log scale)" if positive else ""))
-    ax.set_title(f"phase: {phase}")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.set_ylabel("loss (log scale)")
+    ax.set_title(f"phase: {phase}" + (f"  (always 0: {', '.join(skipped)})" if skipped else ""), fontsize=10)
+    ax.grid(True, which="both", alpha=0.25)
+    if len(skipped) < len(terms):
+        ax.legend(fontsize=8)
     return fig_to_png(fig)
 
 
@@ -134,14 +140,15 @@ def metrics_series(metrics: dict) -> tuple[dict[str, tuple[np.ndarray, np.ndarra
 def metrics_figure(series: dict[str, tuple[np.ndarray, np.ndarray]], means: dict[str, float]) -> bytes:
     plt = _plt()
     names = sorted(series)
-    fig, axes = plt.subplots(len(names), 1, figsize=(6.4, 2.2 * len(names)), squeeze=False, sharex=True)
+    fig, axes = plt.subplots(len(names), 1, figsize=(6.4, 0.6 + 1.9 * len(names)), squeeze=False, sharex=True,
+                             layout="constrained")
     for ax, name in zip(axes[:, 0], names):
         x, y = series[name]
         ax.plot(x, y, marker="o", ms=3, lw=1.2)
         if name in means:
             ax.axhline(means[name], color="gray", ls="--", lw=1, label=f"mean {means[name]:.4g}")
             ax.legend(fontsize=8)
-        ax.set_ylabel(name)
+        ax.set_ylabel(name.replace(" (", "\n("), fontsize=8)
         ax.grid(True, alpha=0.3)
     axes[-1, 0].set_xlabel("frame")
     fig.suptitle("per-frame error against the ground truth")
@@ -151,7 +158,7 @@ def metrics_figure(series: dict[str, tuple[np.ndarray, np.ndarray]], means: dict
 def timings_figure(timings: dict[str, float]) -> bytes:
     plt = _plt()
     names = list(timings)
-    fig, ax = plt.subplots(figsize=(6.4, 0.5 + 0.4 * len(names)))
+    fig, ax = plt.subplots(figsize=(6.4, 0.8 + 0.4 * len(names)), layout="constrained")
     ax.barh(names, [timings[n] for n in names], color="#4a7ab5")
     ax.invert_yaxis()
     ax.set_xlabel("seconds")

@@ -158,7 +158,16 @@ def _section_metrics(res: Result) -> str:
 def _section_params(res: Result) -> str:
     if not res.params:
         return _none("no params.json")
-    return _table(_flatten(res.params))
+    params = dict(res.params)
+    units = params.pop("units", None)
+    units = units if isinstance(units, dict) else {}
+    rows = [(k, v) for k, v in _flatten(params)]
+    body = "".join(f"<tr><td>{html.escape(k)}</td><td class=\"num\">{html.escape(_fmt(v))}</td>"
+                   f"<td>{html.escape(str(units.get(k, '')))}</td></tr>" for k, v in rows)
+    notes = "".join(f"<li>{html.escape(k)}: {html.escape(str(v))}</li>" for k, v in units.items()
+                    if k not in params)
+    return (f"<table><tr><th>name</th><th>value</th><th>unit</th></tr>{body}</table>"
+            + (f"<ul>{notes}</ul>" if notes else ""))
 
 
 def _section_maps(res: Result) -> str:
