@@ -87,14 +87,17 @@ def test_default_lookup_failure_selects_a_found_llvm(monkeypatch):
     monkeypatch.setattr(mb, "_checked", {})
     monkeypatch.setattr(mb, "_probe", fake_probe)
     monkeypatch.setattr(mb, "find_llvm_candidates", lambda min_major=19: ["/opt/llvm-21/lib/libLLVM.so.21.1"])
-    assert mb.ensure_backend("cpu") == "llvm_ad_rgb"
-    assert calls == [None, "/opt/llvm-21/lib/libLLVM.so.21.1"]
-    assert os.environ["DRJIT_LIBLLVM_PATH"] == "/opt/llvm-21/lib/libLLVM.so.21.1"
-    monkeypatch.delenv("DRJIT_LIBLLVM_PATH", raising=False)
+    try:
+        assert mb.ensure_backend("cpu") == "llvm_ad_rgb"
+        assert calls == [None, "/opt/llvm-21/lib/libLLVM.so.21.1"]
+        assert os.environ["DRJIT_LIBLLVM_PATH"] == "/opt/llvm-21/lib/libLLVM.so.21.1"
+    finally:
+        os.environ.pop("DRJIT_LIBLLVM_PATH", None)  # set by ensure_backend itself, not by monkeypatch
 
     # nothing found: one line naming the package to install
     monkeypatch.setattr(mb, "_checked", {})
     monkeypatch.setattr(mb, "find_llvm_candidates", lambda min_major=19: [])
     with pytest.raises(mb.BackendUnavailableError) as info:
         mb.ensure_backend("cpu")
+    assert "DRJIT_LIBLLVM_PATH" not in os.environ or os.environ["DRJIT_LIBLLVM_PATH"] != "/opt/llvm-21/lib/libLLVM.so.21.1"
     assert INSTALL_HINT in str(info.value) and "\n" not in str(info.value)

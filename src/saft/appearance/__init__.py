@@ -47,8 +47,9 @@ variance but not this bias.)
 
 CPU profile (``cpu_profile``, chosen automatically on CPU by ``profile_for_device``): 100 epochs of 3
 random frames, half resolution, 1 spp, plain 128² per-texel maps (lr 0.1, metallic starting at 0.1),
-env map 256×512 (lr 3e-2), re-renders at 32 spp. Measured with ``benchmarks/bench_appearance.py`` (20
-frames of 200×200 px, 16×16 quads): ~100 s of CPU time for the fit, held-out PSNR ≈ 27.4 dB from 17.6 dB.
+env map fitted at 64×128 (lr 3e-2) and returned upsampled to 256×512, re-renders at 32 spp. Measured with
+``benchmarks/bench_appearance.py`` (20 frames of 200×200 px, 16×16 quads): 47 s of CPU time for the fit
+(88 s wall on the shared, loaded 2-core machine), held-out PSNR 28.1 dB from 17.6 dB.
 In the same short budget the decoder converged more slowly (26.9 vs 28.8 dB at 150×4 epochs), hence texels
 on CPU; ``maps="decoder"`` switches back (paper profile default). See ``config.cpu_profile``.
 

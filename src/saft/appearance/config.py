@@ -29,9 +29,12 @@ class AppearanceConfig:
     lr_decoder: float = 2e-4
     betas_decoder: tuple[float, float] = (0.99, 0.9999)
     lr_texels: float = 2e-2
-    # environment map (lat-long, linear radiance)
+    # environment map (lat-long, linear radiance): fitted at env_height×env_width, returned (bilinearly
+    # upsampled if smaller) at env_output_height×env_output_width
     env_height: int = 256
     env_width: int = 512
+    env_output_height: int = 256
+    env_output_width: int = 512
     env_init: float = 0.5
     env_min: float = 0.01
     lr_env: float = 1e-2
@@ -94,15 +97,18 @@ def cpu_profile(base: AppearanceConfig | None = None) -> AppearanceConfig:
     """The automatic CPU profile, chosen by measurement on the shared 2-core CPU (bench_appearance.py:
     20 frames of 200×200 px, 16×16-quad sheet, 15 frames fitted, 5 held out).
 
-    * 100 epochs of 3 random frames each, at half resolution (100×100 px), 1 spp: ~97 s of CPU time for
-      the fit (174 s wall with 3–4 other jobs on the 2 cores); held-out PSNR 27.4 dB (grey start 17.6 dB).
-      150 epochs × 4 frames gave 28.8 dB for ~2× the time.
+    * 100 epochs of 3 random frames each, at half resolution (100×100 px), 1 spp: 47 s of CPU time for
+      the fit (88 s wall with 3–4 other jobs on the 2 cores); held-out PSNR 28.1 dB (grey start 17.6 dB).
+      (With a 256×512 env map: 27.6 dB in 89 s CPU; 150 epochs × 4 frames: 28.8 dB in ~2× the time.)
     * Plain per-texel maps (128², lr 0.1) instead of the decoder: in the same 150×4 budget the decoder
       (32-px tiles, latent 128, lr 5e-3) reached 26.9 dB against 28.8 dB for texels, and ran slower; the
       decoder stays available (maps="decoder", using the tile/latent/lr values below) and is the paper
       profile's default.
     * Metallic starts at 0.1 instead of 0.5 (cloth is mostly dielectric; a short schedule does not recover
-      from a half-metal start as well). The env map keeps 256×512 (its cost is negligible).
+      from a half-metal start as well).
+    * The env map is fitted at 64×128 and returned upsampled to 256×512: at 1 spp over only ~300 frame
+      renders, a 256×512 map receives sparse gradients per texel and Adam turns them into salt-and-pepper
+      noise; the coarser grid pools them.
     """
     base = base or AppearanceConfig()
     return replace(
@@ -121,6 +127,8 @@ def cpu_profile(base: AppearanceConfig | None = None) -> AppearanceConfig:
         lr_decoder=5e-3,
         betas_decoder=(0.9, 0.999),
         lr_env=3e-2,
+        env_height=64,
+        env_width=128,
         render_spp=32,
         checkpoint_every=25,
     )

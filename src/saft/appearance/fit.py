@@ -211,6 +211,10 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
     with torch.no_grad():
         maps = model()
         env_final = env(colour_weight(cfg.epochs - 1, cfg.epochs, cfg.grey_fraction, cfg.blend_fraction))
+        out_shape = (cfg.env_output_height, cfg.env_output_width)
+        if tuple(env_final.shape[:2]) != out_shape:
+            env_final = Fnn.interpolate(env_final.permute(2, 0, 1)[None], size=out_shape, mode="bilinear",
+                                        align_corners=False)[0].permute(1, 2, 0).clamp_min(cfg.env_min)
     return AppearanceResult(
         diffuse=maps["diffuse"].cpu().numpy().astype(np.float32),
         roughness=maps["roughness"].cpu().numpy().astype(np.float32),
