@@ -61,3 +61,20 @@ def test_rendered_vertex_lands_on_projected_pixel():
     # far from the image centre in both axes, so a flipped image (row 0 = bottom) would fail
     assert abs(vv - (cam.height - 1) / 2) > 5 and abs(u - (cam.width - 1) / 2) > 5
     assert abs(jj.mean() - u) < 0.6 and abs(ii.mean() - vv) < 0.6
+
+
+def test_non_square_pixels_are_resampled_not_refused():
+    """R1's camera has fx/fy = 1.029: the fit works on images resampled to square pixels, and
+    re-renders come back on the camera's own grid, with the cloth where Camera.project puts it."""
+    from saft.appearance.fit import _square_pixels
+    from saft.scene.camera import Camera
+
+    K = np.array([[971.522, 0, 962.134], [0, 944.575, 554.778], [0, 0, 1]])
+    cam = Camera(K, np.diag([-1.0, -1.0, 1.0, 1.0]), 1920, 1080)
+    sq = _square_pixels(cam)
+    assert sq.fx == pytest.approx(sq.fy, rel=1e-3) and sq.width == 1920 and sq.height == 1111
+    pts = np.array([[0.1, 0.2, 1.3], [-0.3, -0.1, 1.2]])
+    uv, _ = cam.project(pts)
+    uv_sq, _ = sq.project(pts)
+    assert np.allclose(uv_sq[:, 0], uv[:, 0], atol=0.5)
+    assert np.allclose((uv_sq[:, 1] + 0.5) * cam.height / sq.height - 0.5, uv[:, 1], atol=0.5)

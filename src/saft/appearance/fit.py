@@ -91,12 +91,34 @@ def masked_linearised_srgb_mse(pred_linear: torch.Tensor, target_linear: torch.T
 
 
 def _square_pixels(camera: Camera) -> Camera:
-    """Mitsuba needs fx == fy; `Camera.scaled` may make them differ by a rounding ratio: use their mean."""
+    """Mitsuba needs fx == fy. A camera whose pixels are not square (R1: fx/fy = 1.029) is replaced by the
+    camera of the image resampled vertically to square pixels (height·fx/fy rows); a remaining rounding
+    ratio below 1 % is absorbed by using the mean focal length."""
     if camera.fx == camera.fy:
         return camera
-    K = camera.K.copy()
-    K[0, 0] = K[1, 1] = 0.5 * (camera.fx + camera.fy)
-    return Camera(K, camera.world_to_camera, camera.width, camera.height)
+    cam = camera
+    if abs(camera.fx - camera.fy) > 0.005 * camera.fx:
+        height = max(1, int(round(camera.height * camera.fx / camera.fy)))
+        sy = height / camera.height
+        K = camera.K.copy()
+        K[1, 1] *= sy
+        K[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
+        cam = Camera(K, camera.world_to_camera, camera.width, height)
+    K = cam.K.copy()
+    K[0, 0] = K[1, 1] = 0.5 * (cam.fx + cam.fy)
+    return Camera(K, cam.world_to_camera, cam.width, cam.height)
+
+
+def _resample(images: torch.Tensor, height: int, width: int) -> torch.Tensor:
+    """(F, H, W[, C]) → (F, height, width[, C]), area-averaged down, bilinear up."""
+    if images.shape[1:3] == (height, width):
+        return images
+    x = images[..., None] if images.dim() == 3 else images
+    x = x.permute(0, 3, 1, 2)
+    mode = "area" if height <= x.shape[2] and width <= x.shape[3] else "bilinear"
+    x = Fnn.interpolate(x, size=(height, width), mode=mode, **({} if mode == "area" else {"align_corners": False}))
+    x = x.permute(0, 2, 3, 1).contiguous()
+    return x[..., 0] if images.dim() == 3 else x
 
 
 def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rgb, target_mask,
@@ -128,6 +150,7 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
     dev = torch.device(device)
     rgb_t, mask_t, cam = _resize_targets(rgb, mask, camera, cfg.image_scale)
     cam = _square_pixels(cam)
+    rgb_t, mask_t = _resample(rgb_t, cam.height, cam.width), _resample(mask_t, cam.height, cam.width)
     rgb_t, mask_t = rgb_t.to(dev), mask_t.to(dev)
     lin_t = srgb_to_linear(rgb_t.clamp(0.0, 1.0))
     slope_t = srgb_slope(rgb_t)
@@ -246,8 +269,9 @@ def render_appearance(result: AppearanceResult, vertices, triangles, uvs, camera
         for f in range(v.shape[0]):
             renderer.set_vertices(v[f])
             img = renderer.render(*maps, spp=spp, seed=seed + f)
-            out.append(linear_to_srgb(img).cpu().numpy().astype(np.float32))
-    out = np.stack(out)
+            out.append(linear_to_srgb(img).cpu())
+    # back to the camera's own pixel grid when it was resampled to square pixels
+    out = _resample(torch.stack(out), camera.height, camera.width).numpy().astype(np.float32)
     return out[0] if single else out
 
 
