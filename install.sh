@@ -9,11 +9,19 @@ cd "$(dirname "$0")"
 extras=""
 [ "${1:-}" = "--dev" ] && extras="dev"
 
-# Mitsuba's CPU backend (appearance phase) needs a system LLVM >= 19.
-if command -v apt-get >/dev/null 2>&1 && ! ldconfig -p 2>/dev/null | grep -q 'libLLVM\(-\|\.so\.\)19'; then
+# System packages: Mitsuba's CPU backend (appearance phase) needs LLVM >= 19; the tests use headless
+# Chromium (HTML report) and the Khronos glTF validator (npm).
+apt_packages=""
+ldconfig -p 2>/dev/null | grep -q 'libLLVM\(-\|\.so\.\)19' || apt_packages="libllvm19"
+if [ "$extras" = "dev" ] && ! command -v chromium >/dev/null 2>&1; then apt_packages="$apt_packages chromium"; fi
+if [ -n "$apt_packages" ] && command -v apt-get >/dev/null 2>&1; then
     SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
-    $SUDO apt-get update -qq && $SUDO apt-get install -y -qq libllvm19 >/dev/null \
-        || echo "saft install: could not install libllvm19; the appearance phase will be unavailable on CPU" >&2
+    { $SUDO apt-get update -qq && $SUDO apt-get install -y -qq $apt_packages >/dev/null; } \
+        || echo "saft install: could not install $apt_packages (appearance on CPU / browser test unavailable)" >&2
+fi
+if [ "$extras" = "dev" ] && command -v npm >/dev/null 2>&1 && [ ! -d "$(npm root -g 2>/dev/null)/gltf-validator" ]; then
+    npm install -g --silent gltf-validator >/dev/null 2>&1 \
+        || echo "saft install: gltf-validator not installed; the glTF validator test will be skipped" >&2
 fi
 
 PIP="python3 -m pip"
