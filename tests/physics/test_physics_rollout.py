@@ -204,6 +204,28 @@ def test_torch_cg_solver_matches_lu_solver():
         assert torch.allclose(a, b, rtol=1e-6, atol=1e-8 * b.abs().max().item())
 
 
+@pytest.mark.parametrize("mode", ["projected", "exact"])
+def test_cholmod_solver_matches_lu_solver(mode):
+    """The CHOLMOD-preconditioned path (solver="auto" on CPU when scikit-sparse is importable) gives the
+    same rollout and gradients as the SuperLU one (tol 1e-12: positions to 1e-10, gradients to rtol 1e-6)."""
+    from saft.physics import solver as S
+
+    t, x0, v0, p, W = _setup()
+    if not S.HAVE_CHOLMOD:
+        with pytest.raises(ValueError, match="scikit-sparse"):
+            rollout(t, x0, v0, p, num_frames=N, solver="cholmod")
+        pytest.skip("scikit-sparse (CHOLMOD) not installed")
+    res = {}
+    for solver in ("lu", "cholmod"):
+        pp = PhysicsParams(*(x.detach().clone().requires_grad_(True) for x in p.tensors()))
+        pos = rollout(t, x0, v0, pp, num_frames=N, solver=solver, tol=1e-12, hessian=mode)
+        (pos * W).sum().backward()
+        res[solver] = (pos.detach(), [x.grad for x in pp.tensors()])
+    assert torch.allclose(res["lu"][0], res["cholmod"][0], atol=1e-10)
+    for a, b in zip(res["lu"][1], res["cholmod"][1]):
+        assert torch.allclose(a, b, rtol=1e-6, atol=1e-8 * b.abs().max().item())
+
+
 def test_float32_inputs_and_defaults():
     t, x0, _, _, _ = _setup()
     pos = rollout(t, x0.float(), num_frames=3)

@@ -24,7 +24,8 @@ import torch
 from saft.errors import SimulationError
 from saft.physics.energy import LN10, ElementEval  # noqa: F401 (ElementEval: tests patch it here)
 from saft.physics.kernels import StepKernels
-from saft.physics.solver import JacobiCGSolver, ReusedLUSolver, SolveStats, _csr
+from saft.physics import solver as _solver_mod
+from saft.physics.solver import CholmodPCGSolver, JacobiCGSolver, ReusedLUSolver, SolveStats, _csr
 from saft.physics.topology import ClothTopology
 
 GRAVITY = (0.0, -9.81, 0.0)
@@ -85,7 +86,14 @@ class PhysicsParams:
 
 def _solver_for(topology: ClothTopology, solver: str, tol: float, stats: SolveStats):
     if solver == "auto":
-        solver = "lu" if topology.device.type == "cpu" else "cg"
+        if topology.device.type != "cpu":
+            solver = "cg"
+        else:
+            solver = "cholmod" if _solver_mod.HAVE_CHOLMOD else "lu"
+    if solver == "cholmod":
+        if not _solver_mod.HAVE_CHOLMOD:
+            raise ValueError("solver='cholmod' needs scikit-sparse (sksparse.cholmod), which is not importable")
+        return CholmodPCGSolver(topology.csr_indptr, topology.csr_indices, tol=tol, stats=stats)
     if solver == "lu":
         return ReusedLUSolver(topology.csr_indptr, topology.csr_indices, tol=tol, stats=stats)
     if solver == "cg":
@@ -93,7 +101,7 @@ def _solver_for(topology: ClothTopology, solver: str, tol: float, stats: SolveSt
         crow = torch.as_tensor(topology.csr_indptr, device=dev, dtype=torch.int64)
         col = torch.as_tensor(topology.csr_indices, device=dev, dtype=torch.int64)
         return JacobiCGSolver(crow, col, topology.diag_idx, tol=tol, stats=stats)
-    raise ValueError(f"solver must be 'auto', 'lu' or 'cg', got {solver!r}")
+    raise ValueError(f"solver must be 'auto', 'lu', 'cholmod' or 'cg', got {solver!r}")
 
 
 class _Sim:
@@ -114,7 +122,7 @@ class _Sim:
         self.kernels = StepKernels(t, hessian, compile=compile)
         self.stats = SolveStats()
         self.stats_out = None  # the caller's stats dict (backward counters are added as bwd_*)
-        self.use_numpy = (solver == "lu") or (solver == "auto" and t.device.type == "cpu")
+        self.use_numpy = (solver in ("lu", "cholmod")) or (solver == "auto" and t.device.type == "cpu")
         self.m3 = t.mass[:, None].expand(-1, 3)  # (V, 3)
         self.mass_diag = t.mass.repeat_interleave(3)  # (3V,)
         self.pinned = None

@@ -81,16 +81,19 @@ class ReusedLUSolver:
     def _keep(self):
         if self.step is None:
             return
-        nbytes = (self.lu.L.nnz + self.lu.U.nnz) * (4 + (4 if self.lu_f32 else 8))
+        nbytes = self._factor_nbytes(self.lu, self.lu_f32)
         if self._factor_bytes + nbytes > self.keep_factors_bytes:
             # over budget: thin out the kept factors (every other one), keeping the spread over time
             for k in sorted(self.factors)[1::2]:
                 lu, f32 = self.factors.pop(k)
-                self._factor_bytes -= (lu.L.nnz + lu.U.nnz) * (4 + (4 if f32 else 8))
+                self._factor_bytes -= self._factor_nbytes(lu, f32)
             if self._factor_bytes + nbytes > self.keep_factors_bytes:
                 return
         self.factors[self.step] = (self.lu, self.lu_f32)
         self._factor_bytes += nbytes
+
+    def _factor_nbytes(self, lu, f32):
+        return (lu.L.nnz + lu.U.nnz) * (4 + (4 if f32 else 8))
 
     def matrix(self, data: np.ndarray) -> sp.csr_matrix:
         return sp.csr_matrix((data, self.indices, self.indptr), shape=(self.n, self.n), copy=False)
@@ -191,6 +194,69 @@ class ReusedLUSolver:
             p += z
             rz = rz_new
         return None, self.max_iter
+
+
+try:  # optional: CHOLMOD through scikit-sparse (needs the SuiteSparse library)
+    from sksparse.cholmod import CholmodError as _CholmodError
+    from sksparse.cholmod import analyze as _cholmod_analyze
+
+    HAVE_CHOLMOD = True
+except Exception:  # noqa: BLE001 - not installed or the shared library is missing
+    HAVE_CHOLMOD = False
+
+_CHOLMOD_SYMBOLIC: dict = {}  # pattern key -> analysed Factor (fill-reducing ordering + etree), once per topology
+
+
+class CholmodPCGSolver(ReusedLUSolver):
+    """CPU, when scikit-sparse (CHOLMOD) is importable: the same reused-factor PCG as ``ReusedLUSolver``
+    with a sparse Cholesky factor instead of the SuperLU one. The symbolic analysis (ordering, elimination
+    tree) is done once per sparsity pattern and cached; each refactorisation is numeric only. On the R1
+    system (3072 DOFs) the simplicial LL^T factor has ~half the entries of the symmetric-mode LU, so a
+    preconditioner application costs ~0.27 ms instead of ~0.6 ms and a refactorisation ~23 ms. The factor
+    is float64. A non-SPD matrix ("exact" Hessian under compression) falls back to SuperLU with pivoting.
+    """
+
+    def __init__(self, indptr, indices, **kw):
+        super().__init__(indptr, indices, **kw)
+        self.precond_float32 = False
+        key = (self.n, len(self.indices), hash(self.indptr.tobytes()), hash(self.indices.tobytes()))
+        self._key = key
+        self._nnz_l = None
+
+    def _symbolic(self, A):
+        ent = _CHOLMOD_SYMBOLIC.get(self._key)
+        if ent is None:
+            F = _cholmod_analyze(A, mode="simplicial", ordering_method="best")
+            ent = _CHOLMOD_SYMBOLIC[self._key] = [F, None]
+        return ent
+
+    def _factor_nbytes(self, lu, f32):
+        if isinstance(lu, spla.SuperLU):
+            return super()._factor_nbytes(lu, f32)
+        return self._nnz_l * 12
+
+    def factorize(self, data: np.ndarray, pivoting: bool = False):
+        if pivoting:
+            return super().factorize(data, pivoting=True)
+        c0 = time.perf_counter()
+        A = sp.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n), copy=False)
+        ent = self._symbolic(A)
+        try:
+            F = ent[0].cholesky(A)
+        except _CholmodError:
+            return super().factorize(data, pivoting=True)  # not positive definite: pivoted LU
+        if ent[1] is None:
+            ent[1] = F.L().nnz
+        self._nnz_l = ent[1]
+        self.lu, self.lu_f32 = F, False
+        self.stats.factorizations += 1
+        self._t_fact = time.perf_counter() - c0
+        self._keep()
+
+    def _solve_lu(self, r):
+        if isinstance(self.lu, spla.SuperLU):
+            return super()._solve_lu(r)
+        return self.lu(r)
 
 
 class JacobiCGSolver:
