@@ -360,7 +360,8 @@ def rollout(
     pinned: vertex indices held exactly; at x0 (pinned_positions None) or at ``pinned_positions``
     (num_frames, P, 3), linearly interpolated within a frame's substeps (targets get no gradient).
     hessian: "projected" (PSD element Hessians, default) or "exact" (true Hessian, may be indefinite).
-    solver: "auto" (reused sparse LU + PCG on CPU, Jacobi PCG on other devices), "lu" or "cg".
+    solver: "auto" (on CPU reused-factor PCG: "cholmod" if scikit-sparse is importable, else "lu"; Jacobi
+    PCG on other devices), "lu" (SuperLU), "cholmod" (CHOLMOD Cholesky, SPD; non-SPD falls back to LU) or "cg".
     tol: relative residual of every linear solve. stats: if a dict, receives solver counters (forward;
     the backward's are added as bwd_* when it runs).
     compile: torch.compile the per-substep element kernels (None: the SAFT_PHYSICS_COMPILE environment
