@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
+# Test this checkout's sources even when another checkout is the pip-installed (editable) one.
+sys.path.insert(0, str(REPO / "src"))
 SHARED = (REPO / ".." / "shared").resolve()
 PHI_SFT = SHARED / "data" / "phi_sft"
 
