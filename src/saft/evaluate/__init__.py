@@ -79,7 +79,8 @@ __all__ = [
     "P2S_SYM_L2", "GroundTruthSpec", "closest_points_on_mesh", "depth_error", "depth_error_cm",
     "evaluate_result_dir", "evaluate_sequence", "format_metrics_table", "frame_metrics", "frame_rng",
     "ground_truth_files", "load_ground_truth_frames", "nearest_neighbor_distances",
-    "point_to_surface_distances", "read_point_cloud", "sample_surface",
+    "point_to_surface_distances", "read_point_cloud", "sample_surface", "evaluate_static_template",
+    "format_comparison_table", "ground_truth_spec_for", "ground_truth_spec_from_path",
 ]
 from saft.evaluate.scene_gt import (
     evaluate_static_template,

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from saft.scene.camera import Camera, look_at
+from saft.scene.camera import look_at
 from saft.scene.frames import FrameSequence
 from saft.scene.mesh import QuadMesh
 from saft.scene.scene import Scene
