@@ -10,9 +10,8 @@ appearance from every frame except the held-out ones (every 4th), and we report
 * the RMSE of the linear diffuse map after the best global scale (the diffuse/light ambiguity allows one),
 * the run time of the fit.
 
-Case (a) fits with the true motion. Case (b) "with our reconstructed motion" needs the reconstruction
-pipeline: pass its vertices with ``--estimated-motion FILE.npy`` ((F, V, 3), same frames and template) and the
-same table gets a (b) row; ``reconstruct_motion_hook`` is where the pipeline will be called from.
+Case (a) fits with the true motion; case (b) with the motion that saft's texture + shape phases reconstruct
+from the same renders (``reconstruct_motion_hook``; or pass ``--estimated-motion FILE.npy``).
 
     python benchmarks/bench_appearance.py                 # CPU profile, 20 frames, 200×200
     python benchmarks/bench_appearance.py --profile paper --device cuda
@@ -52,10 +51,30 @@ def physics_motion(verts0: np.ndarray, quads: np.ndarray, n_frames: int, frame_d
     return out.detach().cpu().numpy()
 
 
-def reconstruct_motion_hook(scene: SyntheticScene) -> np.ndarray | None:
-    """Case (b): the motion reconstructed by `saft reconstruct` from scene.rgb / scene.mask. Not wired yet
-    (the reconstruction pipeline lands separately); returns None so only case (a) runs."""
-    return None
+def reconstruct_motion_hook(scene: SyntheticScene, frame_dt: float = 0.04) -> np.ndarray:
+    """Case (b): the motion that `saft reconstruct` (texture + shape phases, default settings, no pinned
+    vertices given) recovers from the Mitsuba renders scene.rgb / scene.mask and the frame-0 mesh."""
+    import tempfile
+    from pathlib import Path
+
+    from saft.reconstruct import reconstruct
+    from saft.reconstruct.config import load_saft_config
+    from saft.scene import FrameSequence, QuadMesh, Scene, load_scene
+    from saft.scene.native import write_native_scene
+
+    work = Path(tempfile.mkdtemp(prefix="saft-bench-appearance-"))
+    template = QuadMesh(scene.vertices[0], scene.quads, scene.uvs)
+    h, w = scene.rgb.shape[1:3]
+    native = Scene(name="appearance-bench", template=template, camera=scene.camera,
+                   frames=FrameSequence((), None, w, h), frame_dt=frame_dt)
+    write_native_scene(work / "scene", native, scene.rgb, scene.mask)
+    cfg = load_saft_config(None, ['run.device="cpu"', "appearance.enabled=false"])
+    t0 = time.perf_counter()
+    outcome = reconstruct(load_scene(work / "scene"), cfg, work / "result", quiet=True)
+    err = np.linalg.norm(outcome.positions - scene.vertices, axis=-1).mean()
+    print(f"(b) shape reconstruction: {time.perf_counter() - t0:.0f} s, mean vertex error {err * 1000:.1f} mm "
+          f"(static template {np.linalg.norm(scene.vertices[:1] - scene.vertices, axis=-1).mean() * 1000:.1f} mm)")
+    return outcome.positions
 
 
 def masked_psnr(pred: np.ndarray, target: np.ndarray, mask: np.ndarray) -> float:
@@ -102,6 +121,7 @@ def main(argv=None) -> int:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="override an AppearanceConfig field, e.g. --set lr_texels=0.05 (repeatable)")
     ap.add_argument("--estimated-motion", default=None, help="(F, V, 3) .npy of reconstructed motion: case (b)")
+    ap.add_argument("--no-reconstruction", action="store_true", help="skip case (b) (reconstructed motion)")
     args = ap.parse_args(argv)
 
     t0 = time.perf_counter()
@@ -150,7 +170,12 @@ def main(argv=None) -> int:
         rows.append(evaluate(label, res, sc, train, held, novel, args.device, args.eval_spp))
 
     run("(a) true motion", sc.vertices)
-    est = np.load(args.estimated_motion) if args.estimated_motion else reconstruct_motion_hook(sc)
+    if args.estimated_motion:
+        est = np.load(args.estimated_motion)
+    elif args.motion == "physics" and motion_used == "physics" and not args.no_reconstruction:
+        est = reconstruct_motion_hook(sc)
+    else:
+        est = None
     if est is not None:
         run("(b) reconstructed motion", np.asarray(est, dtype=np.float64))
 

@@ -98,3 +98,15 @@ def test_clipped_adam_skips_non_finite_and_clips():
     opt2.load_state_dict(state)
     assert opt2.history == opt.history and opt2.skipped == opt.skipped
     assert norms["b"] == pytest.approx(1e6)
+
+
+def test_constant_acceleration_starts_at_gravity_only_when_something_holds_the_cloth():
+    from saft.reconstruct.shape_phase import initial_const_accel
+
+    g = np.array([0.0, -9.81, 0.0])
+    auto = ShapeConfig()
+    assert auto.const_accel_init == "auto"
+    assert np.allclose(initial_const_accel(g, np.array([0, 1]), auto), g)
+    assert np.allclose(initial_const_accel(g, None, auto), 0.0)
+    assert np.allclose(initial_const_accel(g, None, ShapeConfig(const_accel_init="gravity")), g)
+    assert np.allclose(initial_const_accel(g, np.array([3]), ShapeConfig(const_accel_init="zero")), 0.0)

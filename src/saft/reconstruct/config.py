@@ -77,6 +77,10 @@ class ShapeConfig:
     autoclip_quantile: float = 0.75
     center_vertex_accel: bool = True      # subtract the mean per-vertex acceleration before each epoch
     warm_start_new_frames: bool = True    # a newly added frame starts from the previous frame's accelerations
+    # Start of the constant acceleration: "gravity" (the reference), "zero", or "auto" = gravity when the
+    # scene pins vertices (they carry the weight), else zero: the template is the rest shape, so a cloth
+    # at rest in frame 0 with nothing pinned is in equilibrium only with zero net external force.
+    const_accel_init: Literal["auto", "gravity", "zero"] = "auto"
 
 
 @dataclass

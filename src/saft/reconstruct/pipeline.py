@@ -23,7 +23,8 @@ from saft.reconstruct.checkpoint import (CheckpointClock, InterruptGuard, Interr
 from saft.reconstruct.config import SaftConfig
 from saft.reconstruct.context import PhaseContext, to_device_targets
 from saft.reconstruct.progress import EpochLog, Progress
-from saft.reconstruct.shape_phase import ShapeSimulator, new_shape_state, restore_shape_state, run_shape_phase
+from saft.reconstruct.shape_phase import (ShapeSimulator, initial_const_accel, new_shape_state,
+                                          restore_shape_state, run_shape_phase)
 from saft.reconstruct.texture_phase import new_texture_state, restore_texture_state, run_texture_phase
 from saft.scene import Scene
 
@@ -157,7 +158,8 @@ def reconstruct(scene: Scene, cfg: SaftConfig, out_dir: str | Path, *, resume: b
             if state["phase"] == "shape":
                 ss = (restore_shape_state(state["shape_state"], cfg.shape, device) if "shape_state" in state
                       else new_shape_state(scene.num_frames, scene.template.num_vertices,
-                                           scene.gravity_or_default(), cfg.physics, cfg.shape, device))
+                                           initial_const_accel(scene.gravity_or_default(), scene.pinned, cfg.shape),
+                                           cfg.physics, cfg.shape, device))
                 if cfg.shape.enabled:
                     positions = run_shape_phase(ctx, sim, ss, cfg.physics, cfg.shape, texture)
                 else:

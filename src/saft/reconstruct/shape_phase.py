@@ -60,8 +60,16 @@ def _make_optimizer(params: ShapeParams, cfg: ShapeConfig) -> ClippedAdam:
     return ClippedAdam(specs, clip=cfg.grad_clip, quantile=cfg.autoclip_quantile)
 
 
+def initial_const_accel(gravity: np.ndarray, pinned, cfg: ShapeConfig) -> np.ndarray:
+    mode = cfg.const_accel_init
+    if mode == "auto":
+        mode = "gravity" if pinned is not None and len(pinned) > 0 else "zero"
+    return np.asarray(gravity, dtype=np.float64) if mode == "gravity" else np.zeros(3)
+
+
 def new_shape_state(num_frames: int, num_vertices: int, gravity: np.ndarray, phys: PhysicsConfig,
                     cfg: ShapeConfig, device, dtype=torch.float64) -> ShapeState:
+    """Fresh parameters; `gravity` is the initial constant acceleration (see initial_const_accel)."""
     def scalar(v):
         return torch.tensor(float(v), dtype=dtype, device=device, requires_grad=cfg.optimize_stiffness)
 
