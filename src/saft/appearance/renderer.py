@@ -24,19 +24,7 @@ import torch
 from saft.appearance.mitsuba_backend import load_mitsuba
 from saft.errors import SaftInputError
 from saft.scene.camera import Camera
-
-
-def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals (V, 3) following the triangle winding."""
-    v = np.asarray(vertices, dtype=np.float64)
-    t = np.asarray(triangles, dtype=np.int64)
-    fn = np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]])
-    n = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(n, t[:, k], fn)
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    n = np.where(length > 1e-20, n / np.maximum(length, 1e-20), np.array([0.0, 0.0, 1.0]))
-    return n
+from saft.scene.mesh import vertex_normals
 
 
 def mitsuba_sensor_dict(camera: Camera, mi) -> dict:

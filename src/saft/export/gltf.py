@@ -24,23 +24,12 @@ import numpy as np
 from saft.errors import SaftInputError
 from saft.io_utils import atomic_path
 from saft.result import Result, read_result
+from saft.scene.mesh import vertex_normals
 
 log = logging.getLogger("saft")
 
 FLOAT, UINT16, UINT32 = 5126, 5123, 5125
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
-
-
-def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals (V, 3); a vertex with no area gets +Z."""
-    v = np.asarray(vertices, dtype=np.float64)
-    fn = np.cross(v[triangles[:, 1]] - v[triangles[:, 0]], v[triangles[:, 2]] - v[triangles[:, 0]])
-    n = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(n, triangles[:, k], fn)
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    out = np.where(length > 1e-20, n / np.maximum(length, 1e-30), np.array([0.0, 0.0, 1.0]))
-    return out
 
 
 def up_direction(res: Result) -> np.ndarray | None:

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from saft.errors import SaftInputError
-from saft.export.gltf import vertex_normals
+from saft.scene.mesh import vertex_normals
 from saft.io_utils import atomic_path, atomic_write_bytes, atomic_write_text
 from saft.result import Result, mtl_text, read_result
 from saft.scene.mesh import write_obj

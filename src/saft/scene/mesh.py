@@ -56,6 +56,19 @@ class QuadMesh:
         return QuadMesh(np.asarray(vertices, dtype=np.float64).reshape(-1, 3), self.quads, self.uvs)
 
 
+def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals (V, 3) following the triangle winding; +Z where a vertex has no
+    area. (saft.render.vertex_normals is the differentiable, batched torch version.)"""
+    v = np.asarray(vertices, dtype=np.float64)
+    t = np.asarray(triangles, dtype=np.int64)
+    fn = np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]])
+    n = np.zeros_like(v)
+    for k in range(3):
+        np.add.at(n, t[:, k], fn)
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.where(length > 1e-20, n / np.maximum(length, 1e-20), np.array([0.0, 0.0, 1.0]))
+
+
 def read_obj(path: str | Path) -> QuadMesh:
     """Read a quad OBJ with per-vertex UVs. Every problem raises SaftInputError naming the file."""
     path = Path(path)
