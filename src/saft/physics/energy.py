@@ -56,6 +56,18 @@ def deformation_energy(x, topology: ClothTopology, log10_Y, log10_B, log10_S, pe
     return E_Y + E_B + E_S
 
 
+def _hess_q(u1, u2, q, l1, l2, a1, a2):
+    """(grad^2 q) of q = û1·û2 (e-space, elements-last) applied to the vector (a1, a2)."""
+    u1a1, u2a1, u1a2, u2a2 = _dot(u1, a1), _dot(u2, a1), _dot(u1, a2), _dot(u2, a2)
+    r1 = (-u2a1 * u1 - u1a1 * u2 - q * a1 + 3.0 * q * u1a1 * u1) / (l1 * l1) + (
+        a2 - u1a2 * u1 - u2a2 * u2 + q * u2a2 * u1
+    ) / (l1 * l2)
+    r2 = (-u1a2 * u2 - u2a2 * u1 - q * a2 + 3.0 * q * u2a2 * u2) / (l2 * l2) + (
+        a1 - u1a1 * u1 - u2a1 * u2 + q * u1a1 * u2
+    ) / (l1 * l2)
+    return r1, r2
+
+
 def _as_t(v, like):
     if isinstance(v, torch.Tensor):
         return v.to(dtype=like.dtype)
@@ -191,15 +203,7 @@ class ElementEval:
 
     def _hess_q(self, a1, a2):
         """(grad^2 q) applied to the e-space vector (a1, a2)."""
-        u1, u2, q, l1, l2 = self.u1, self.u2, self.q, self.l1, self.l2
-        u1a1, u2a1, u1a2, u2a2 = _dot(u1, a1), _dot(u2, a1), _dot(u1, a2), _dot(u2, a2)
-        r1 = (-u2a1 * u1 - u1a1 * u2 - q * a1 + 3.0 * q * u1a1 * u1) / (l1 * l1) + (
-            a2 - u1a2 * u1 - u2a2 * u2 + q * u2a2 * u1
-        ) / (l1 * l2)
-        r2 = (-u1a2 * u2 - u2a2 * u1 - q * a2 + 3.0 * q * u2a2 * u2) / (l2 * l2) + (
-            a1 - u1a1 * u1 - u2a1 * u2 + q * u1a1 * u2
-        ) / (l1 * l2)
-        return r1, r2
+        return _hess_q(self.u1, self.u2, self.q, self.l1, self.l2, a1, a2)
 
     def exact_hvp_parts(self, lamT):
         """Per-element pieces of (d2E/dx2) lam with the TRUE Hessian (whatever the mode), aligned with
@@ -222,7 +226,6 @@ class ElementEval:
           c_k = dk-weighted pieces: c_Y = lam . dE_Y/dx (with Y), kY = lam^T K_Y w (with Y), etc.
         Only the "projected" mode is closed form here; "exact" falls back to autograd for the hinges.
         """
-        t = self.t
         ls_, us, sp, dsp = self.ls, self.us, self.sp, self.dsp
         lams, lam1, lam2 = self._to_e(lamT)
         ws, w1, w2 = self._to_e(wT)
@@ -289,13 +292,7 @@ class ElementEval:
             g2 = (u1 - q * u2) / l2
             gl = _dot(g1, lam1) + _dot(g2, lam2)
             gw = _dot(g1, w1) + _dot(g2, w2)
-            u1a1, u2a1, u1a2, u2a2 = _dot(u1, w1), _dot(u2, w1), _dot(u1, w2), _dot(u2, w2)
-            r1 = (-u2a1 * u1 - u1a1 * u2 - q * w1 + 3.0 * q * u1a1 * u1) / (l1 * l1) + (
-                w2 - u1a2 * u1 - u2a2 * u2 + q * u2a2 * u1
-            ) / (l1 * l2)
-            r2 = (-u1a2 * u2 - u2a2 * u1 - q * w2 + 3.0 * q * u2a2 * u2) / (l2 * l2) + (
-                w1 - u1a1 * u1 - u2a1 * u2 + q * u1a1 * u2
-            ) / (l1 * l2)
+            r1, r2 = _hess_q(u1, u2, q, l1, l2, w1, w2)  # differentiable in e1, e2 here
             s = (phi_qq * gl * gw + phi_q * (_dot(lam1, r1) + _dot(lam2, r2))).sum()
             T1, T2 = torch.autograd.grad(s, (e1, e2))
         return T1, T2
