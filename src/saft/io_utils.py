@@ -103,3 +103,20 @@ def write_image(path: str | Path, image: np.ndarray) -> None:
     path = Path(path)
     with atomic_path(path) as tmp:
         iio.imwrite(tmp, img8, extension=path.suffix)
+
+
+def resize_images(images, height: int, width: int):
+    """Resize a torch batch (N, H, W) or (N, H, W, C) to (height, width): area averaging when shrinking,
+    bilinear (align_corners=False) otherwise. Differentiable."""
+    import torch.nn.functional as F
+
+    if tuple(images.shape[1:3]) == (height, width):
+        return images
+    x = images[..., None] if images.dim() == 3 else images
+    x = x.permute(0, 3, 1, 2)
+    if height <= x.shape[2] and width <= x.shape[3]:
+        x = F.interpolate(x, size=(height, width), mode="area")
+    else:
+        x = F.interpolate(x, size=(height, width), mode="bilinear", align_corners=False)
+    x = x.permute(0, 2, 3, 1).contiguous()
+    return x[..., 0] if images.dim() == 3 else x

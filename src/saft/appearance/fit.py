@@ -18,6 +18,7 @@ from saft.appearance.params import (EnvironmentMap, TexelMaps, TextureDecoder, c
                                     env_smoothness, linear_to_srgb, srgb_to_linear)
 from saft.appearance.renderer import ClothRenderer
 from saft.errors import SaftInputError
+from saft.io_utils import resize_images
 from saft.scene.camera import Camera
 
 
@@ -56,10 +57,7 @@ def _resize_targets(rgb: np.ndarray, mask: np.ndarray, camera: Camera, scale: fl
     if scale >= 1.0:
         return rgb_t, mask_t, camera
     cam = camera.scaled(scale)
-    size = (cam.height, cam.width)
-    rgb_s = Fnn.interpolate(rgb_t.permute(0, 3, 1, 2), size=size, mode="area").permute(0, 2, 3, 1)
-    mask_s = Fnn.interpolate(mask_t[:, None], size=size, mode="area")[:, 0]
-    return rgb_s.contiguous(), mask_s.contiguous(), cam
+    return resize_images(rgb_t, cam.height, cam.width), resize_images(mask_t, cam.height, cam.width), cam
 
 
 def masked_srgb_mse(pred_linear: torch.Tensor, target_srgb: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -109,18 +107,6 @@ def _square_pixels(camera: Camera) -> Camera:
     return Camera(K, cam.world_to_camera, cam.width, cam.height)
 
 
-def _resample(images: torch.Tensor, height: int, width: int) -> torch.Tensor:
-    """(F, H, W[, C]) → (F, height, width[, C]), area-averaged down, bilinear up."""
-    if images.shape[1:3] == (height, width):
-        return images
-    x = images[..., None] if images.dim() == 3 else images
-    x = x.permute(0, 3, 1, 2)
-    mode = "area" if height <= x.shape[2] and width <= x.shape[3] else "bilinear"
-    x = Fnn.interpolate(x, size=(height, width), mode=mode, **({} if mode == "area" else {"align_corners": False}))
-    x = x.permute(0, 2, 3, 1).contiguous()
-    return x[..., 0] if images.dim() == 3 else x
-
-
 def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rgb, target_mask,
                    config: AppearanceConfig | None = None, device="cpu",
                    progress: Callable[[int, int, float], None] | None = None,
@@ -150,7 +136,7 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
     dev = torch.device(device)
     rgb_t, mask_t, cam = _resize_targets(rgb, mask, camera, cfg.image_scale)
     cam = _square_pixels(cam)
-    rgb_t, mask_t = _resample(rgb_t, cam.height, cam.width), _resample(mask_t, cam.height, cam.width)
+    rgb_t, mask_t = resize_images(rgb_t, cam.height, cam.width), resize_images(mask_t, cam.height, cam.width)
     rgb_t, mask_t = rgb_t.to(dev), mask_t.to(dev)
     lin_t = srgb_to_linear(rgb_t.clamp(0.0, 1.0))
     slope_t = srgb_slope(rgb_t)
@@ -271,7 +257,7 @@ def render_appearance(result: AppearanceResult, vertices, triangles, uvs, camera
             img = renderer.render(*maps, spp=spp, seed=seed + f)
             out.append(linear_to_srgb(img).cpu())
     # back to the camera's own pixel grid when it was resampled to square pixels
-    out = _resample(torch.stack(out), camera.height, camera.width).numpy().astype(np.float32)
+    out = resize_images(torch.stack(out), camera.height, camera.width).numpy().astype(np.float32)
     return out[0] if single else out
 
 

@@ -110,15 +110,12 @@ class FrameSequence:
 
 
 def _resize(img: np.ndarray, height: int, width: int) -> np.ndarray:
-    """Area-averaging resize (box filter) for downscaling, bilinear for upscaling, via torch."""
+    """(H, W, C) numpy image resized with saft.io_utils.resize_images (area down, bilinear up)."""
     import torch
-    import torch.nn.functional as F
 
-    t = torch.from_numpy(np.ascontiguousarray(img)).permute(2, 0, 1)[None]
-    mode = "area" if height <= img.shape[0] and width <= img.shape[1] else "bilinear"
-    kwargs = {} if mode == "area" else {"align_corners": False}
-    out = F.interpolate(t, size=(height, width), mode=mode, **kwargs)
-    return out[0].permute(1, 2, 0).numpy()
+    from saft.io_utils import resize_images
+
+    return resize_images(torch.from_numpy(np.ascontiguousarray(img))[None], height, width)[0].numpy()
 
 
 def list_images(folder: Path) -> list[Path]:
