@@ -30,18 +30,12 @@ class SyntheticScene:
 
 
 def grid_sheet(n_quads: int = 16, size: float = 1.0):
-    """A square sheet of n×n quads in the x-y plane centred at the origin; returns vertices, quads, uvs."""
-    n = n_quads + 1
-    g = np.linspace(-size / 2, size / 2, n)
-    X, Y = np.meshgrid(g, g[::-1])  # row 0 = top (y = +size/2)
-    verts = np.stack([X.ravel(), Y.ravel(), np.zeros(n * n)], axis=1)
-    uvs = np.stack([(X.ravel() / size + 0.5), (Y.ravel() / size + 0.5)], axis=1)
-    quads = []
-    for i in range(n_quads):
-        for j in range(n_quads):
-            a = i * n + j
-            quads.append([a + n, a + n + 1, a + 1, a])  # counter-clockwise seen from -z
-    return verts, np.array(quads, dtype=np.int64), uvs
+    """A square sheet of n×n quads in the x-y plane centred at the origin, row 0 at the top; returns
+    vertices, quads, uvs (saft.scene.synthetic.grid_template)."""
+    from saft.scene.synthetic import grid_template
+
+    mesh = grid_template(n_quads + 1, size)
+    return mesh.vertices, mesh.quads, mesh.uvs
 
 
 def wave_motion(verts: np.ndarray, n_frames: int = 20, amplitude: float = 0.12, dt: float = 0.04) -> np.ndarray:
