@@ -45,10 +45,11 @@ def run(ablation: str, out: Path, device: str, extra: list[str], frames: int | N
     metrics = evaluate_result_dir(out, ground_truth_spec_for(scene), allow_partial=bool(frames))
     mean = metrics["mean"]
     row = {"ablation": ablation, "cd2_1e-4m2": mean["cd2_1e-4m2"], "cd1_cm": mean["cd1_cm"],
-           "p2s_l1_mm": mean["p2s_l1_mm"], "wall_s": wall, "timings": outcome.timings}
+           "p2s_l1_mm": mean["p2s_l1_mm"], "depth_cm": mean.get("depth_cm"), "wall_s": wall, "timings": outcome.timings}
     (out / "bench_r1.json").write_text(json.dumps(row, indent=2))
     print(f"{ablation:16s} CD2 {mean['cd2_1e-4m2']:.3f}  CD1 {mean['cd1_cm']:.3f} cm  "
-          f"p2s {mean['p2s_l1_mm']:.2f} mm  wall {wall / 60:.1f} min", flush=True)
+          f"p2s {mean['p2s_l1_mm']:.2f} mm  δ {mean.get('depth_cm', float('nan')):.3f} cm  wall {wall / 60:.1f} min",
+          flush=True)
     return row
 
 

@@ -11,10 +11,11 @@
       renders/frame_000.png  rendered | target | |difference| per frame
       log.csv                per epoch: phase, epoch, frames in use, each loss term, seconds
       timings.json           seconds per phase
-      metrics.json           with ground truth: per-frame and mean CD2, CD1, p2s (saft evaluate)
-      depth/frame_000.npz    optional, with depth ground truth: arrays `rendered` and `target`, H×W depth in
-                             metres along the camera z axis of the working camera, NaN or 0 where there is no cloth
-                             (the pairs saft evaluate compares for depth_cm)
+      metrics.json           with ground truth: per-frame and mean CD2, CD1, p2s, depth δ (saft evaluate)
+      depth/frame_000.npz    with ground truth (saft evaluate): arrays `rendered` and `target`, H×W depth in
+                             metres along the camera z axis of the working camera (resized to about two
+                             ground-truth points per pixel), NaN or 0 where there is no cloth: the mesh
+                             rasterized and the ground-truth cloud projected (the pairs compared for depth_cm)
       material/              phase 3: diffuse.png, roughness.png, metallic.png, envmap.exr (+ envmap.png),
                              renders/frame_000.png re-renders, novel_view.png
       checkpoint/            state for --resume (removed only by the user)
@@ -80,6 +81,17 @@ def read_depth_pair(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     return rendered, target
 
 
+def write_depth_pair(result_dir: str | Path, frame: int, rendered: np.ndarray, target: np.ndarray) -> Path:
+    """Write depth/frame_XXX.npz (float32, compressed) atomically; the inverse of read_depth_pair."""
+    from saft.io_utils import atomic_path
+
+    path = Path(result_dir) / "depth" / f"frame_{frame:03d}.npz"
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, rendered=rendered.astype(np.float32), target=target.astype(np.float32))
+    return path
+
+
 def mtl_text(texture_rel: str = "../texture.png") -> str:
     return ("# saft cloth material\nnewmtl cloth\nKa 0 0 0\nKd 1 1 1\nKs 0 0 0\nd 1\nillum 1\n"
             f"map_Kd {texture_rel}\n")
@@ -138,8 +150,7 @@ def read_result(result_dir: str | Path) -> Result:
     params = _read_json_opt(folder / "params.json")
     camera = None
     if "camera" in scene_info:
-        c = scene_info["camera"]
-        camera = Camera(np.asarray(c["K"]), np.asarray(c["world_to_camera"]), c["width"], c["height"])
+        camera = Camera.from_json(scene_info["camera"])
     texture = None
     if (folder / "texture.png").is_file():
         texture = read_image(folder / "texture.png")[:, :, :3]

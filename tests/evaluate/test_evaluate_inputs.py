@@ -149,6 +149,24 @@ def test_result_dir_writes_metrics_json_and_table(tmp_path):
     assert sum(line.startswith("frame_") for line in lines) == 3
 
 
+def test_result_dir_with_a_camera_gets_the_depth_error_and_depth_maps(tmp_path):
+    """scene.json names the working camera: the clouds and the meshes become depth maps on one grid."""
+    from saft.result import list_depth_files, read_depth_pair
+
+    res, gt = _result_dir(tmp_path, 2, 2, offset=0.005)     # GT plane 5 mm behind the sheet, facing the camera
+    assert "depth_cm" not in evaluate_result_dir(res, GroundTruthSpec(gt), write=False)["mean"]
+    camera = Camera.from_intrinsics(200.0, 200.0, 49.5, 49.5, np.eye(4), 100, 100)
+    (res / "scene.json").write_text(json.dumps({"camera": camera.to_json()}))
+    metrics = evaluate_result_dir(res, GroundTruthSpec(gt))
+    assert metrics["per_frame"]["depth_cm"] == pytest.approx([0.5, 0.5], abs=1e-3)
+    files = list_depth_files(res)
+    assert [f.name for f in files] == ["frame_000.npz", "frame_001.npz"]
+    rendered, target = read_depth_pair(files[0])
+    both = np.isfinite(rendered) & np.isfinite(target)
+    assert both.sum() > 100                                   # dense: about two cloud points per pixel
+    assert np.allclose(rendered[both], 1.0, atol=1e-5) and np.allclose(target[both], 1.005, atol=1e-9)
+
+
 def test_result_dir_frame_counts(tmp_path):
     res, gt = _result_dir(tmp_path, 2, 3)
     _raises_naming(res / "meshes", "2 meshes but 3 ground-truth frames", evaluate_result_dir, res,

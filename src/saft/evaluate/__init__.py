@@ -29,7 +29,14 @@ Sequences (``evaluate.py``)
         {"num_frames", "seed", "units", "definitions", "per_frame": {key: [..]}, "mean": {key: float}}
     ``evaluate_result_dir(result_dir, gt_spec, seed=0, allow_partial=False, write=True) -> dict``
         reads ``result_dir/meshes/*.obj`` (sorted), requires as many meshes as GT frames unless
-        allow_partial (then the common prefix, with a warning), writes ``result_dir/metrics.json``.
+        allow_partial (then the common prefix, with a warning), writes ``result_dir/metrics.json``; when
+        ``result_dir/scene.json`` names the working camera it adds the depth error δ and writes
+        ``result_dir/depth/frame_*.npz``.
+
+Depth maps from point clouds (``depth_maps.py``)
+    ``depth_pairs(meshes, gt_frames, camera)`` (rendered, ground truth) depth maps on one pixel grid:
+    ``mesh_depth`` rasterizes the mesh, ``point_cloud_depth`` projects the cloud (nearest point per pixel),
+    ``depth_camera`` resizes the camera to about two cloud points per pixel.
     ``format_metrics_table(metrics) -> str``  per-frame rows and a mean row.
 
 Scenes (``scene_gt.py``)

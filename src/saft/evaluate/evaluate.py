@@ -141,7 +141,8 @@ def evaluate_result_dir(result_dir: str | Path, gt_spec: GroundTruthSpec, seed: 
     mesh_files = mesh_files[:n]
     gt_frames = load_ground_truth_frames(gt_spec)[:n]
     meshes = [read_result_mesh(p) for p in mesh_files]
-    metrics = evaluate_sequence(meshes, None, gt_frames, seed=seed)
+    pairs = _depth_pairs_from_clouds(result_dir, meshes, gt_frames)
+    metrics = evaluate_sequence(meshes, None, gt_frames, seed=seed, depth_pairs=pairs)
     metrics = {
         "result_dir": str(result_dir),
         "ground_truth_dir": str(gt_spec.directory),
@@ -150,8 +151,28 @@ def evaluate_result_dir(result_dir: str | Path, gt_spec: GroundTruthSpec, seed: 
         "ground_truth_files": [p.name for p in gt_files[:n]],
     }
     if write:
+        from saft.result import write_depth_pair
+
+        for i, (rendered, target) in enumerate(pairs or []):
+            write_depth_pair(result_dir, i, rendered, target)
         atomic_write_json(result_dir / METRICS_FILENAME, _json_safe(metrics))
     return metrics
+
+
+def _depth_pairs_from_clouds(result_dir: Path, meshes: list, gt_frames: list[np.ndarray]):
+    """Depth maps of the meshes and of the clouds in the result's working camera (saft.evaluate.depth_maps),
+    or None when the result folder does not say its camera (meshes of another method)."""
+    import json
+
+    from saft.evaluate.depth_maps import depth_pairs
+    from saft.scene.camera import Camera
+
+    info = result_dir / "scene.json"
+    try:
+        camera = Camera.from_json(json.loads(info.read_text())["camera"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return depth_pairs([_mesh_arrays(m, None) for m in meshes], gt_frames, camera)
 
 
 def _json_safe(obj):

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from saft.errors import SaftInputError
+from saft.evaluate.depth_maps import depth_pairs
 from saft.evaluate.evaluate import _COLUMNS, evaluate_sequence
 from saft.evaluate.ground_truth import GroundTruthSpec, load_ground_truth_frames
 
@@ -47,7 +48,8 @@ def evaluate_static_template(scene, spec: GroundTruthSpec, seed: int = 0, frames
     if frames is not None:
         gt = gt[:frames]
     meshes = [scene.template.vertices] * len(gt)
-    return evaluate_sequence(meshes, scene.template.triangles, gt, seed=seed)
+    pairs = depth_pairs([(scene.template.vertices, scene.template.triangles)] * len(gt), gt, scene.working_camera())
+    return evaluate_sequence(meshes, scene.template.triangles, gt, seed=seed, depth_pairs=pairs)
 
 
 def format_comparison_table(results: dict[str, dict]) -> str:

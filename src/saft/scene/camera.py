@@ -149,6 +149,12 @@ class Camera:
         K[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
         return Camera(K, self.world_to_camera, width, height)
 
+    @staticmethod
+    def from_json(data: dict) -> "Camera":
+        """Inverse of to_json."""
+        return Camera(np.asarray(data["K"], dtype=np.float64), np.asarray(data["world_to_camera"], dtype=np.float64),
+                      int(data["width"]), int(data["height"]))
+
     def to_json(self) -> dict:
         return {
             "width": self.width,
