@@ -2,7 +2,7 @@
 
     saft demo [--out DIR]                       synthetic scene → reconstruction → evaluation table
     saft reconstruct SCENE --out DIR            texture, shape (and appearance) of a scene's cloth
-    saft evaluate RESULT_DIR --gt GT_OR_SCENE   CD2, CD1, p2s per frame and mean; writes metrics.json
+    saft evaluate RESULT_DIR --gt GT_OR_SCENE   CD2, CD1, p2s, depth δ per frame and mean; writes metrics.json
     saft report DIR                             self-contained HTML report of a result
     saft export DIR [--video] [--gltf F.glb] [--sequence obj|ply]
     saft inspect SCENE                          check a scene and print what saft reads from it

@@ -47,6 +47,9 @@ class PhysicsConfig:
     substeps: int = 4                     # simulation steps per video frame (h = frame_dt / substeps)
     density: float = 0.1                  # kg/m² (areal density; only the ratio force/mass matters)
     damping: float = 0.9                  # velocity factor applied before each substep
+    # Element Hessians in the implicit step: "projected" (each clamped to PSD: the system is always positive
+    # definite) or "exact" (the reference's; may be indefinite when the cloth is compressed).
+    hessian: Literal["projected", "exact"] = "projected"
     log10_Y_init: float = math.log10(200.0)
     log10_B_init: float = -3.0
     log10_S_init: float = -4.0

@@ -114,7 +114,8 @@ class ShapeSimulator:
                                 damping=damping, a_const=params.const_accel,
                                 a_vert=params.vertex_accel[: num_frames - 1])
         return rollout(self.topology, self.template, None, physics, num_frames=num_frames,
-                       substeps=self.phys.substeps, frame_dt=self.frame_dt, pinned=self.pinned)
+                       substeps=self.phys.substeps, frame_dt=self.frame_dt, pinned=self.pinned,
+                       hessian=self.phys.hessian)
 
     def energy(self, positions: torch.Tensor, params: ShapeParams) -> torch.Tensor:
         """Deformation energy of each frame (F,), stiffnesses detached (for R_E)."""
