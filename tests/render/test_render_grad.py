@@ -12,7 +12,11 @@ import pytest
 import torch
 
 from saft.render import render_cloth
-from saft.render import torch_backend as tb
+from saft.render.torch import antialias as aa
+from saft.render.torch import fused, raster
+from saft.render.torch import interpolate as interp
+from saft.render.torch import texture as texmod
+from saft.render.torch.rows import ScatterPlanar
 
 sys.path.insert(0, str(Path(__file__).parent))
 from _render_helpers import box_down, folded_sheet, grid, pinhole, smooth_texture  # noqa: E402
@@ -73,7 +77,7 @@ def test_mask_and_image_gradients_on_a_boundary_silhouette():
 def test_mask_and_image_gradients_on_a_fold_silhouette():
     verts, tris, uvs, fold = folded_sheet()
     cam = pinhole(32, 28, 40.0)
-    sil = tb.silhouette_edges(_clip(verts, cam), torch.tensor(tris), cam.height, cam.width)
+    sil = aa.silhouette_edges(_clip(verts, cam), torch.tensor(tris), cam.height, cam.width)
     # the fold column is an interior edge of the mesh, yet a silhouette
     assert sil.any(-1)[0].sum() > 0
     for which in ("mask", "image"):
@@ -120,16 +124,16 @@ def test_barycentric_and_texture_backward_match_autograd():
     tri = torch.tensor([[0, 1, 2], [3, 4, 5], [6, 7, 8], [1, 2, 9]])
     pix = torch.tensor([3, 50, 77, 130, 199])
     tid = torch.tensor([0, 1, 2, 3, 1])
-    assert torch.autograd.gradcheck(lambda p: tb.bary_weights(p, tri, pix, tid, (10, 10))[:2], (pos,))
+    assert torch.autograd.gradcheck(lambda p: raster.bary_weights(p, tri, pix, tid, (10, 10))[:2], (pos,))
     tex = torch.rand(8, 6, 2, dtype=torch.float64, requires_grad=True)
     uv = torch.rand(7, 2, dtype=torch.float64, requires_grad=True)
     da = torch.rand(7, 4, dtype=torch.float64) * 0.5
     for mode in ("clamp", "wrap"):
-        assert torch.autograd.gradcheck(lambda t, u: tb.texture_compact(t, u, da, mode), (tex, uv))
+        assert torch.autograd.gradcheck(lambda t, u: texmod.texture_compact(t, u, da, mode), (tex, uv))
     A = torch.rand(10, 3, dtype=torch.float64, requires_grad=True)
     bw = torch.rand(3, 5, dtype=torch.float64, requires_grad=True)
     idx = torch.randint(0, 10, (3, 5))
-    assert torch.autograd.gradcheck(lambda b, a: tb.interp_compact(b, a, idx), (bw, A))
+    assert torch.autograd.gradcheck(lambda b, a: interp.interp_compact(b, a, idx), (bw, A))
 
 
 @pytest.mark.parametrize("shape", [(8, 6), (16, 16), (5, 1), (1, 4), (33, 17)])
@@ -143,8 +147,8 @@ def test_fast_texture_matches_grid_sample_path(shape):
     for scale in (0.0, 0.02, 0.3, 2.0):
         da = torch.rand(60, 4, dtype=torch.float64) * scale
         for mml in (None, 1):
-            ref = tb.texture_compact(tex, uv, da if scale else None, "clamp", mml)
-            got = tb.texture_fast(tex, uv[:, 0], uv[:, 1], da.T if scale else None, mml).T
+            ref = texmod.texture_compact(tex, uv, da if scale else None, "clamp", mml)
+            got = fused.texture_fast(tex, uv[:, 0], uv[:, 1], da.T if scale else None, mml).T
             w = torch.rand_like(ref)
             g_ref = torch.autograd.grad((ref * w).sum(), (tex, uv))
             g_got = torch.autograd.grad((got * w).sum(), (tex, uv))
@@ -153,14 +157,14 @@ def test_fast_texture_matches_grid_sample_path(shape):
             torch.testing.assert_close(g_got[1], g_ref[1], atol=1e-10, rtol=0)
     # a texture in another dtype than the coordinates (render_cloth allows it)
     u32 = uv.detach()[:, 0].float().requires_grad_(True)
-    got = tb.texture_fast(tex, u32, uv.detach()[:, 1].float(), None)
+    got = fused.texture_fast(tex, u32, uv.detach()[:, 1].float(), None)
     (got * torch.rand_like(got)).sum().backward()
     assert u32.grad.dtype == torch.float32 and tex.grad.dtype == torch.float64
     tex.grad = None
     u = uv.detach()[:7, 0].clone().requires_grad_(True)
     v = uv.detach()[:7, 1].clone().requires_grad_(True)
     da = torch.rand(4, 7, dtype=torch.float64) * 0.5
-    assert torch.autograd.gradcheck(lambda t, a, b: tb.texture_fast(t, a, b, da), (tex, u, v))
+    assert torch.autograd.gradcheck(lambda t, a, b: fused.texture_fast(t, a, b, da), (tex, u, v))
 
 
 def test_plane_table_matches_barycentrics_and_its_backward_is_exact():
@@ -176,15 +180,15 @@ def test_plane_table_matches_barycentrics_and_its_backward_is_exact():
     tid = torch.tensor([0, 1, 2, 3, 1])
     H = W = 10
     b = pix // (H * W)
-    nx, ny = tb._pixel_ndc(pix, H, W, torch.float64)
-    table = tb.plane_table(pos, tri, uv, nrm)
-    uv_p, depth, n, bw, zw, uv_da = tb.plane_interp(table, b * tri.shape[0] + tid, nx, ny, H, W)
-    bw_ref, zw_ref, db = tb.bary_weights(pos, tri, pix, tid, (H, W), with_db=True)
+    nx, ny = raster.pixel_ndc(pix, H, W, torch.float64)
+    table = fused.plane_table(pos, tri, uv, nrm)
+    uv_p, depth, n, bw, zw, uv_da = fused.plane_interp(table, b * tri.shape[0] + tid, nx, ny, H, W)
+    bw_ref, zw_ref, db = raster.bary_weights(pos, tri, pix, tid, (H, W), with_db=True)
     torch.testing.assert_close(bw, bw_ref[:2])
     torch.testing.assert_close(zw, zw_ref)
-    vid = tb.pixel_vertex_ids(pos, tri, pix, tid, H, W)
+    vid = raster.pixel_vertex_ids(pos, tri, pix, tid, H, W)
     attr = torch.cat([uv[None].expand(B, V, 2), pos[..., 3:4], nrm], -1).reshape(B * V, 6)
-    ref = tb.interp_compact(bw_ref, attr, vid)
+    ref = interp.interp_compact(bw_ref, attr, vid)
     torch.testing.assert_close(torch.cat([uv_p, depth[None], n]).T, ref)
     a = uv[tri[tid]]  # (P, 3, 2): uv_da from the barycentric derivatives
     d0, d1 = a[:, 0] - a[:, 2], a[:, 1] - a[:, 2]
@@ -197,7 +201,7 @@ def test_plane_table_matches_barycentrics_and_its_backward_is_exact():
     n0 = nrm.clone().requires_grad_(True)
     for outs in ((0,), (0, 1), (0, 1, 2), (2,)):
         assert torch.autograd.gradcheck(
-            lambda p, q: tuple(tb.plane_interp(tb.plane_table(p, tri, uv, q), idx, nx, ny, H, W)[k]
+            lambda p, q: tuple(fused.plane_interp(fused.plane_table(p, tri, uv, q), idx, nx, ny, H, W)[k]
                                for k in outs), (p0, n0))
 
 
@@ -213,18 +217,18 @@ def test_antialias_blend_backward_is_exact():
     po = (pf + 1) % 30
     target = torch.where(f.detach() > 0, po, pf)
     target[6:] = target[:6]  # repeated targets
-    assert torch.autograd.gradcheck(lambda c, x: tb._AABlendFn.apply(c, x, pf, po, target), (color, f))
+    assert torch.autograd.gradcheck(lambda c, x: aa._AABlendFn.apply(c, x, pf, po, target), (color, f))
     # render_cloth's split form (rgb and coverage as two tensors) is the same blend
     rgb, last = color.detach()[:, :2].clone(), color.detach()[:, 2].clone()
-    r2, l2 = tb._AABlendSplitFn.apply(rgb, last, f.detach(), pf, po, target)
-    whole = tb._AABlendFn.apply(color.detach(), f.detach(), pf, po, target)
+    r2, l2 = aa._AABlendSplitFn.apply(rgb, last, f.detach(), pf, po, target)
+    whole = aa._AABlendFn.apply(color.detach(), f.detach(), pf, po, target)
     torch.testing.assert_close(torch.cat([r2, l2[:, None]], 1), whole)
-    assert torch.autograd.gradcheck(lambda r, c, x: tb._AABlendSplitFn.apply(r, c, x, pf, po, target),
+    assert torch.autograd.gradcheck(lambda r, c, x: aa._AABlendSplitFn.apply(r, c, x, pf, po, target),
                                     (rgb.requires_grad_(True), last.requires_grad_(True), f))
-    assert torch.autograd.gradcheck(lambda r, x: tb._AABlendSplitFn.apply(r, last.detach(), x, pf, po, target)[0],
+    assert torch.autograd.gradcheck(lambda r, x: aa._AABlendSplitFn.apply(r, last.detach(), x, pf, po, target)[0],
                                     (rgb, f))
     vals = torch.rand(3, 5, dtype=torch.float64, generator=g, requires_grad=True)
-    assert torch.autograd.gradcheck(lambda x: tb._ScatterPlanar.apply(x, torch.tensor([7, 1, 3, 0, 9]), 10), (vals,))
+    assert torch.autograd.gradcheck(lambda x: ScatterPlanar.apply(x, torch.tensor([7, 1, 3, 0, 9]), 10), (vals,))
     verts, tris, _, _ = folded_sheet()
     cam = pinhole(16, 14, 20.0)
     tri = torch.tensor(tris)

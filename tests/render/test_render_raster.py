@@ -12,7 +12,11 @@ import torch
 
 from saft.render import (camera_to_clip, get_rasterizer, interpolate, projection_matrix, rasterize,
                          render_cloth, texture)
-from saft.render import torch_backend as tb
+from saft.render.torch import antialias as tb_aa
+from saft.render.torch import interpolate as tb_interp
+from saft.render.torch import raster as tb_raster
+from saft.render.torch import texture as tb_tex
+from saft.render.reference import render_cloth_primitives
 
 sys.path.insert(0, str(Path(__file__).parent))
 from _render_helpers import box_down, grid, pinhole, smooth_texture  # noqa: E402
@@ -207,11 +211,14 @@ def test_render_cloth_fast_path_matches_the_primitive_pipeline():
     value and in gradient."""
     cam, verts, tris, uvs = _scene_for_render()
 
-    class Generic:  # the torch primitives behind an object that is not a TorchRasterizer
-        rasterize = staticmethod(tb.rasterize)
-        interpolate = staticmethod(tb.interpolate)
-        texture = staticmethod(tb.texture)
-        antialias = staticmethod(tb.antialias)
+    class Generic:  # the torch primitives run as the nvdiffrast backend runs its own
+        rasterize = staticmethod(tb_raster.rasterize)
+        interpolate = staticmethod(tb_interp.interpolate)
+        texture = staticmethod(tb_tex.texture)
+        antialias = staticmethod(tb_aa.antialias)
+
+        def render_cloth(self, *args):
+            return render_cloth_primitives(self, *args)
 
     outs, grads = [], []
     for R in (get_rasterizer("torch"), Generic()):

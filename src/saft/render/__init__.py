@@ -17,7 +17,9 @@ Public API
 camera_to_clip(vertices (…, V, 3), camera, *, crop=None, scale=None, near=None, far=None) -> (…, V, 4)
 projection_matrix(camera, near, far) -> (4, 4) numpy;  effective_camera(camera, crop, scale) -> Camera
 get_rasterizer(backend="auto"|"torch"|"nvdiffrast", device=None) -> rasterizer object with the four
-    methods below (same signatures)
+    methods below (same signatures), and render_cloth(vertices, pos, tri, uv, tex, H, W, max_mip_level):
+    the one backend call of render_cloth (torch: fused kernels, saft.render.torch.fused; nvdiffrast: the
+    four primitives, saft.render.reference)
 rasterize(pos (B, V, 4), tri (T, 3), resolution=(H, W), with_db=False) -> rast | (rast, rast_db)
 interpolate(attr (B|1, V, C) | (V, C), rast, tri, rast_db=None, diff_attrs=None)
     -> out (B, H, W, C) | (out, out_da) when rast_db is given (out_da: (dA/dX, dA/dY) per listed attr)
@@ -32,9 +34,10 @@ render_cloth(vertices (B, V, 3) | (V, 3), triangles (T, 3), uvs (V, 2), texture 
 
 from saft.render.backend import antialias, get_rasterizer, interpolate, rasterize, texture
 from saft.render.clip import auto_near_far, camera_to_clip, effective_camera, projection_matrix
-from saft.render.cloth import RenderOutput, render_cloth, vertex_normals
+from saft.render.cloth import render_cloth
 from saft.render.nvdiffrast_backend import NvdiffrastRasterizer, nvdiffrast_available
-from saft.render.torch_backend import TorchRasterizer
+from saft.render.output import RenderOutput, vertex_normals
+from saft.render.torch import TorchRasterizer
 
 __all__ = [
     "NvdiffrastRasterizer",

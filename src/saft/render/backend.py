@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from saft.render.nvdiffrast_backend import NvdiffrastRasterizer, nvdiffrast_available
-from saft.render.torch_backend import TorchRasterizer
+from saft.render.torch import TorchRasterizer
 
 _INSTANCES: dict = {}
 

@@ -13,6 +13,9 @@ from collections import OrderedDict
 
 import torch
 
+from saft.render.output import RenderOutput
+from saft.render.reference import render_cloth_primitives
+
 
 def nvdiffrast_available() -> bool:
     try:
@@ -39,6 +42,11 @@ class NvdiffrastRasterizer:
 
     def _tri(self, tri: torch.Tensor) -> torch.Tensor:
         return tri.to(device=self.device, dtype=torch.int32).contiguous()
+
+    def render_cloth(self, vertices: torch.Tensor, pos: torch.Tensor, tri: torch.Tensor, uv: torch.Tensor,
+                     tex: torch.Tensor, H: int, W: int, max_mip_level: int | None) -> RenderOutput:
+        """saft.render.render_cloth's backend call (arguments prepared there): the four primitives."""
+        return render_cloth_primitives(self, vertices, pos, tri, uv, tex, H, W, max_mip_level)
 
     def rasterize(self, pos: torch.Tensor, tri: torch.Tensor, resolution, with_db: bool = False):
         if pos.dim() == 2:

@@ -1,0 +1,35 @@
+"""What render_cloth returns, and the vertex normals every backend interpolates."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+
+@dataclass
+class RenderOutput:
+    """rgb (B, H, W, 3): texture colours as they are (no lighting), black background, antialiased.
+    mask (B, H, W): antialiased coverage in [0, 1] (differentiable, silhouette gradients).
+    depth (B, H, W): metric camera z of the visible surface, 0 where empty (not antialiased).
+    normals (B, H, W, 3): unit world-frame normals of the visible surface, interpolated from area-weighted
+    vertex normals, oriented by the triangle winding (not flipped towards the camera); 0 where empty.
+    rast (B, H, W, 4): the raw rasterizer output (u, v, z/w, triangle_id + 1) (detached on the torch
+    backend, whose gradients flow through its own compact kernels).
+    pos_clip (B, V, 4): the clip-space vertices used."""
+
+    rgb: torch.Tensor
+    mask: torch.Tensor
+    depth: torch.Tensor
+    normals: torch.Tensor
+    rast: torch.Tensor
+    pos_clip: torch.Tensor
+
+
+def vertex_normals(vertices: torch.Tensor, tri: torch.Tensor) -> torch.Tensor:
+    """(B, V, 3) unit area-weighted vertex normals (right-hand rule on the triangle winding)."""
+    B, T = vertices.shape[0], tri.shape[0]
+    v = vertices.index_select(1, tri.T.reshape(-1)).reshape(B, 3, T, 3)  # index_select: index_add backward
+    fn = torch.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0], dim=-1)  # length = 2·area
+    n = torch.zeros_like(vertices).index_add(1, tri.T.reshape(-1), fn.repeat(1, 3, 1))
+    return n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)

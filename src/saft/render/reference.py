@@ -1,0 +1,34 @@
+"""render_cloth as four primitive calls on any rasterizer object: the nvdiffrast backend's render_cloth,
+and the reference the torch backend's fused path (saft.render.torch.fused) is tested against."""
+
+from __future__ import annotations
+
+import torch
+
+from saft.render.output import RenderOutput, vertex_normals
+
+
+def render_cloth_primitives(R, vertices: torch.Tensor, pos: torch.Tensor, tri: torch.Tensor, uv: torch.Tensor,
+                            tex: torch.Tensor, H: int, W: int, max_mip_level: int | None) -> RenderOutput:
+    """rasterize → interpolate (UV, camera depth, vertex normals, coverage) → mip-mapped texture → antialias
+    with R's primitives. vertices (B, V, 3), pos (B, V, 4) clip space, tri (T, 3) int64, uv (V, 2) OBJ
+    convention, tex (Ht, Wt, C) or (B|1, Ht, Wt, C)."""
+    if tex.dim() == 3:
+        tex = tex[None]
+    B, V, _ = vertices.shape
+    rast, rast_db = R.rasterize(pos, tri, (H, W), with_db=True)
+    uv_tex = torch.stack([uv[:, 0], 1.0 - uv[:, 1]], dim=-1)  # nvdiffrast texture: v → row from the top
+    normals_v = vertex_normals(vertices, tri)
+    attr = torch.cat([uv_tex[None].expand(B, V, 2), pos[..., 3:4], normals_v, torch.ones_like(pos[..., :1])],
+                     dim=-1)
+    pix, pix_da = R.interpolate(attr, rast, tri, rast_db=rast_db, diff_attrs=[0, 1])
+    covered = rast[..., 3] > 0
+    tex_rgb = R.texture(tex, pix[..., 0:2].contiguous(), pix_da, filter_mode="linear-mipmap-linear",
+                        boundary_mode="clamp", max_mip_level=max_mip_level, mask=covered)
+    cov = pix[..., 6:7]
+    rgb = tex_rgb.to(cov.dtype) * cov
+    aa = R.antialias(torch.cat([rgb, cov], dim=-1), rast, pos, tri)
+    n = pix[..., 3:6]
+    n = n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    return RenderOutput(rgb=aa[..., :3], mask=aa[..., 3], depth=pix[..., 2], normals=n, rast=rast,
+                        pos_clip=pos)
