@@ -3,55 +3,52 @@
 from __future__ import annotations
 
 import logging
+import time
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
+from saft.appearance import AppearanceConfig, AppearanceResult, fit_appearance, render_appearance, save_appearance
 from saft.io_utils import write_image
+from saft.reconstruct.context import PhaseContext
+from saft.scene.camera import orbit_camera
 
 log = logging.getLogger("saft")
 
 NOVEL_VIEW_ANGLE = 45.0  # degrees around the vertical axis through the cloth (the paper's novel view)
 
 
-def run_appearance_phase(out_dir: Path, positions: np.ndarray, triangles: np.ndarray, uvs: np.ndarray, camera,
-                         target_rgb: np.ndarray, target_mask: np.ndarray, cfg, device, progress,
-                         resume_state: dict | None, checkpoint: Callable[[dict], None],
-                         check_interrupt: Callable[[], None], epoch_log=None):
-    from saft.appearance import fit_appearance, save_appearance
-
+def run_appearance_phase(ctx: PhaseContext, cfg: AppearanceConfig, positions: np.ndarray, triangles: np.ndarray,
+                         uvs: np.ndarray, resume_state: dict | None) -> AppearanceResult:
+    """Fit the appearance to ctx's targets on the frozen motion `positions` (F, V, 3) and save material/.
+    Checkpoints through ctx.checkpoint("appearance", state); Ctrl-C through ctx.check_interrupt."""
     log.info("appearance: profile %s, %d epochs, %s maps, image scale %g, %s frames per epoch",
              cfg.profile, cfg.epochs, cfg.maps, cfg.image_scale, cfg.frames_per_epoch or "all")
     start = int(resume_state["epoch"]) if resume_state else 0
-    progress.start_phase("appearance", cfg.epochs, start)
-
-    import time
-
+    ctx.progress.start_phase("appearance", cfg.epochs, start)
     last = [time.perf_counter()]
 
     def on_progress(epochs_done: int, epochs: int, loss: float) -> None:
         epoch = epochs_done - 1
-        progress.update(epoch, len(positions), loss)
-        if epoch_log is not None:
-            now = time.perf_counter()
-            epoch_log.add(phase="appearance", epoch=epoch, frames=cfg.frames_per_epoch or len(positions),
-                          loss=float(loss), image=float(loss), seconds=now - last[0])
-            last[0] = now
-        check_interrupt()
+        ctx.progress.update(epoch, len(positions), loss)
+        now = time.perf_counter()
+        ctx.log.add(phase="appearance", epoch=epoch, frames=cfg.frames_per_epoch or len(positions),
+                    loss=float(loss), image=float(loss), seconds=now - last[0])
+        last[0] = now
+        ctx.check_interrupt("appearance")
 
-    result = fit_appearance(positions, triangles, uvs, camera, target_rgb, target_mask, config=cfg, device=device,
-                            progress=on_progress, resume_state=resume_state, checkpoint=checkpoint)
-    progress.end_phase()
-    save_appearance(result, out_dir)
+    result = fit_appearance(positions, triangles, uvs, ctx.camera, ctx.target_rgb.cpu().numpy(),
+                            ctx.target_mask.cpu().numpy(), config=cfg, device=ctx.device, progress=on_progress,
+                            resume_state=resume_state,
+                            checkpoint=lambda app_state: ctx.checkpoint("appearance", app_state))
+    ctx.progress.end_phase()
+    save_appearance(result, ctx.out_dir)
     return result
 
 
 def write_appearance_renders(out_dir: Path, result, positions: np.ndarray, triangles, uvs, camera, target_rgb,
                              device) -> None:
     """material/renders/frame_XXX.png (re-render | target) and material/novel_view/frame_XXX.png (45°)."""
-    from saft.appearance import orbit_camera, render_appearance
-
     mat = Path(out_dir) / "material"
     renders = render_appearance(result, positions, triangles, uvs, camera, device=device)
     for i, img in enumerate(renders):

@@ -1,15 +1,22 @@
-"""What every phase of a run shares: device, targets, the renderer, progress, log and checkpointing."""
+"""What every phase of a run shares: device, targets, the renderer, progress, log, checkpointing and Ctrl-C.
+
+The phase protocol: a phase reads what it needs from the PhaseContext, calls ctx.epoch_done(phase, epochs,
+state_fn) after every epoch (checkpoint when due, then ctx.check_interrupt), or ctx.checkpoint(phase, state)
+and ctx.check_interrupt(phase) itself when its optimiser keeps its own epochs (the appearance fit).
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
 import torch
 
-from saft.reconstruct.checkpoint import Interrupted
+from saft.reconstruct.checkpoint import CheckpointClock, InterruptGuard, Interrupted, save_checkpoint
 from saft.reconstruct.progress import EpochLog, Progress
+from saft.render import render_cloth
 from saft.scene.camera import Camera
 
 
@@ -25,17 +32,41 @@ class PhaseContext:
     rasterizer: object
     progress: Progress
     log: EpochLog
-    # Called after every epoch with (phase, epochs done, a function returning the phase's state); it
-    # writes the checkpoint when due and raises Interrupted after Ctrl-C.
-    on_epoch: Callable[[str, int, Callable[[], dict]], None]
+    out_dir: Path
+    # The run's checkpoint: {"version", "phase", "<phase>_state", results of finished phases, "log", "timings"}.
+    state: dict
+    timings: dict                      # seconds per phase, accumulated over resumed runs
+    guard: InterruptGuard = field(default_factory=InterruptGuard)
+    clock: CheckpointClock = field(default_factory=lambda: CheckpointClock(0.0))
+    # Called after every epoch with (phase, epochs done); returning True acts like Ctrl-C.
+    on_epoch: Callable[[str, int], bool | None] | None = None
 
     def render(self, vertices: torch.Tensor, texture: torch.Tensor):
-        from saft.render import render_cloth
-
         return render_cloth(vertices, self.triangles, self.uvs, texture, self.camera, rasterizer=self.rasterizer)
 
+    def checkpoint(self, phase: str | None = None, phase_state: dict | None = None) -> None:
+        """Write the checkpoint now, with `phase_state` as the state of the running `phase` when given."""
+        if phase is not None:
+            self.state[f"{phase}_state"] = phase_state
+        self.state["log"] = self.log.rows
+        self.state["timings"] = self.timings
+        save_checkpoint(self.out_dir, self.state)
+        self.clock.mark()
+
+    def check_interrupt(self, phase: str, epochs_done: int | None = None) -> None:
+        """Raise Interrupted after Ctrl-C (or an on_epoch request); the checkpoint is already written."""
+        if self.guard.requested:
+            where = f"phase {phase}" if epochs_done is None else f"phase {phase} after epoch {epochs_done}"
+            raise Interrupted(f"interrupted in {where}; continue with --resume "
+                              f"(checkpoint in {self.out_dir / 'checkpoint'})")
+
     def epoch_done(self, phase: str, epochs_done: int, state_fn: Callable[[], dict]) -> None:
-        self.on_epoch(phase, epochs_done, state_fn)
+        """After every epoch: the on_epoch hook, the checkpoint when due or interrupted, then check_interrupt."""
+        if self.on_epoch is not None and self.on_epoch(phase, epochs_done):
+            self.guard.requested = True
+        if self.guard.requested or self.clock.due():
+            self.checkpoint(phase, state_fn())
+        self.check_interrupt(phase, epochs_done)
 
 
 def to_device_targets(rgb: np.ndarray, mask: np.ndarray, device) -> tuple[torch.Tensor, torch.Tensor]:
