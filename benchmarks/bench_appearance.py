@@ -27,9 +27,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from saft.appearance import AppearanceResult, fit_appearance, orbit_camera, render_appearance
+from saft.appearance import AppearanceResult, fit_appearance, render_appearance
 from saft.appearance.config import cpu_profile, paper_profile
-from saft.appearance.synthetic import SyntheticScene, grid_sheet, make_scene, render_targets, wave_motion
+from saft.synthetic.appearance import SyntheticScene, grid_sheet, make_scene, render_targets, wave_motion
+from saft.scene.camera import orbit_camera
 
 
 def physics_motion(verts0: np.ndarray, quads: np.ndarray, n_frames: int, frame_dt: float = 0.04) -> np.ndarray:

@@ -9,7 +9,7 @@ import pytest
 from saft.cli import main
 from saft.result import mesh_path
 from saft.scene import write_obj
-from saft.scene.synthetic import grid_template
+from saft.synthetic.hanging_cloth import grid_template
 
 
 def test_help_texts():

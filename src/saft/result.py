@@ -35,7 +35,8 @@ from pathlib import Path
 import numpy as np
 
 from saft.errors import SaftInputError
-from saft.scene.camera import Camera
+from saft.io_utils import atomic_path, read_image
+from saft.scene.camera import Camera, up_direction
 from saft.scene.mesh import QuadMesh, read_obj
 
 MESH_DIR = "meshes"
@@ -83,8 +84,6 @@ def read_depth_pair(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
 
 def write_depth_pair(result_dir: str | Path, frame: int, rendered: np.ndarray, target: np.ndarray) -> Path:
     """Write depth/frame_XXX.npz (float32, compressed) atomically; the inverse of read_depth_pair."""
-    from saft.io_utils import atomic_path
-
     path = Path(result_dir) / "depth" / f"frame_{frame:03d}.npz"
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:
@@ -118,6 +117,10 @@ class Result:
     def num_frames(self) -> int:
         return int(self.vertices.shape[0])
 
+    def up_direction(self) -> np.ndarray | None:
+        """The world's up: opposite gravity (scene.json / params.json), else the camera's image-up, else None."""
+        return up_direction((self.scene_info.get("gravity"), self.params.get("gravity")), self.camera)
+
     def material_path(self, name: str) -> Path | None:
         p = self.folder / "material" / name
         return p if p.exists() else None
@@ -133,8 +136,6 @@ def _read_json_opt(path: Path) -> dict:
 
 
 def read_result(result_dir: str | Path) -> Result:
-    from saft.io_utils import read_image
-
     folder = Path(result_dir)
     if not folder.is_dir():
         raise SaftInputError(folder, "result folder not found")

@@ -4,9 +4,10 @@ import numpy as np
 import pytest
 
 from saft.appearance.config import cpu_profile
-from saft.appearance.fit import (AppearanceResult, fit_appearance, load_appearance, orbit_camera,
+from saft.appearance.fit import (AppearanceResult, fit_appearance, load_appearance,
                                  render_appearance, save_appearance)
-from saft.appearance.synthetic import make_scene
+from saft.synthetic.appearance import make_scene
+from saft.scene.camera import orbit_camera
 
 
 @pytest.fixture(scope="module")

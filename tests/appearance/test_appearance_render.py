@@ -5,7 +5,7 @@ import numpy as np
 import torch
 
 from saft.appearance.renderer import ClothRenderer
-from saft.appearance.synthetic import make_scene
+from saft.synthetic.appearance import make_scene
 
 
 def test_gradients_match_finite_differences():

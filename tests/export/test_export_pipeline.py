@@ -20,7 +20,7 @@ def pipeline_result(tmp_path_factory):
         from saft.evaluate import evaluate_result_dir, ground_truth_spec_for
         from saft.reconstruct import SaftConfig, reconstruct
         from saft.scene import load_scene
-        from saft.scene.synthetic import HangingClothSpec, write_hanging_cloth
+        from saft.synthetic.hanging_cloth import HangingClothSpec, write_hanging_cloth
     except ImportError as exc:  # the pipeline is developed in parallel
         pytest.skip(f"reconstruction pipeline not importable: {exc}")
     root = tmp_path_factory.mktemp("pipeline")

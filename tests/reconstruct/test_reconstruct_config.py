@@ -69,7 +69,7 @@ def test_physics_hessian_reaches_the_simulator():
     import torch
 
     from saft.reconstruct.shape_phase import ShapeSimulator, new_shape_state
-    from saft.scene.synthetic import grid_template
+    from saft.synthetic.hanging_cloth import grid_template
 
     with pytest.raises(SaftInputError, match="physics.hessian must be one of"):
         load_config(SaftConfig, None, ['physics.hessian="diagonal"'])

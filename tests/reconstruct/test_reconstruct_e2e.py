@@ -12,7 +12,7 @@ from saft.evaluate import evaluate_result_dir, evaluate_static_template, ground_
 from saft.reconstruct import SaftConfig, reconstruct
 from saft.result import read_result
 from saft.scene import load_scene
-from saft.scene.synthetic import HangingClothSpec, write_hanging_cloth
+from saft.synthetic.hanging_cloth import HangingClothSpec, write_hanging_cloth
 
 TINY = HangingClothSpec(grid=8, size=0.4, frames=8, image_size=64, focal=122.0, texture_size=64, gt_points=1500,
                         gust=15.0)

@@ -47,7 +47,7 @@ def test_energy_regularizer_has_no_stiffness_gradient(tmp_path):
     from saft.physics import ClothTopology
     from saft.reconstruct.config import PhysicsConfig
     from saft.reconstruct.shape_phase import ShapeSimulator, new_shape_state
-    from saft.scene.synthetic import grid_template
+    from saft.synthetic.hanging_cloth import grid_template
 
     mesh = grid_template(5, 0.2)
     template = torch.tensor(mesh.vertices)

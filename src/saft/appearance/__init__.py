@@ -18,8 +18,6 @@ device="cpu", progress=None, resume_state=None, checkpoint=None) -> AppearanceRe
     seconds, state. Maps are numpy float32, row 0 = TOP of the texture image (UV v = 1).
 ``render_appearance(result, vertices, triangles, uvs, camera, spp=None, device="cpu", seed=0)``
     sRGB re-render(s): (H, W, 3) for (V, 3) vertices, (F, H, W, 3) for (F, V, 3).
-``orbit_camera(camera, center, angle_deg, axis=None) -> Camera``: the camera turned around the vertical
-    (image-up) axis through ``center`` — the novel view uses 45°.
 ``save_appearance(result, out_dir)`` → DIR/material/diffuse.png (sRGB-encoded), roughness.png,
     metallic.png, envmap.exr (linear float, written with Mitsuba's Bitmap: no extra dependency),
     envmap.png (preview), appearance.json; atomically. ``load_appearance(out_dir)`` reads them back.
@@ -59,8 +57,8 @@ equal fy within 1 %); an LLVM < 19 aborts the process inside kernel compilation,
 """
 
 from saft.appearance.config import AppearanceConfig, cpu_profile, paper_profile, profile_for_device
-from saft.appearance.fit import (AppearanceResult, fit_appearance, load_appearance, orbit_camera,
-                                 render_appearance, save_appearance)
+from saft.appearance.fit import (AppearanceResult, fit_appearance, load_appearance, render_appearance,
+                                 save_appearance)
 from saft.appearance.mitsuba_backend import ensure_backend, load_mitsuba, variant_for_device
 from saft.appearance.params import (EnvironmentMap, TexelMaps, TextureDecoder, colour_weight, env_amplitude,
                                     env_smoothness)
@@ -69,6 +67,6 @@ from saft.appearance.renderer import ClothRenderer
 __all__ = [
     "AppearanceConfig", "AppearanceResult", "ClothRenderer", "EnvironmentMap", "TexelMaps", "TextureDecoder",
     "colour_weight", "cpu_profile", "ensure_backend", "env_amplitude", "env_smoothness", "fit_appearance",
-    "load_appearance", "load_mitsuba", "orbit_camera", "paper_profile", "profile_for_device",
+    "load_appearance", "load_mitsuba", "paper_profile", "profile_for_device",
     "render_appearance", "save_appearance", "variant_for_device",
 ]

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, replace
+from typing import Literal
+
+from saft.config_io import from_dict
+from saft.errors import SaftInputError
 
 
 @dataclass
@@ -10,13 +14,14 @@ class AppearanceConfig:
     """Settings of the appearance phase. Defaults are the paper's (REFERENCE.md "Appearance estimation")."""
 
     enabled: bool = True
-    profile: str = "paper"               # "paper" or "cpu" (informational; stated in the output)
+    profile: Literal["paper", "cpu", "auto"] = "paper"  # informational, stated in the output; "auto" is
+    # resolved before a run (saft.reconstruct.config.load_saft_config, appearance.profile_for_device)
     epochs: int = 2000
     # colour schedule of the environment map: grey 800, blend 400, colour 800 of 2000 epochs
     grey_fraction: float = 0.4
     blend_fraction: float = 0.2
     # texture parametrisation: "decoder" (paper) or "texels" (plain per-texel maps)
-    maps: str = "decoder"
+    maps: Literal["decoder", "texels"] = "decoder"
     tile_size: int = 128                 # decoder tile side (4·2^k)
     num_tiles: int = 16                  # tiles on a square grid (16 → 4×4)
     tile_overlap: int = 10               # → maps of 4·(128−10) = 472 px
@@ -43,7 +48,7 @@ class AppearanceConfig:
     lambda_env_smooth: float = 5e-5      # finite-difference smoothness of the env map
     # image loss: "srgb" (the paper's sRGB MSE) or "srgb_linearised" (its first-order form around the
     # target, unbiased under 1-spp Monte Carlo noise; see fit.masked_linearised_srgb_mse)
-    loss: str = "srgb_linearised"
+    loss: Literal["srgb", "srgb_linearised"] = "srgb_linearised"
     # rendering
     spp: int = 1                         # samples per pixel while fitting
     max_depth: int = 2                   # 2 = direct lighting with shadows (emitter + BSDF sampling, MIS)
@@ -54,8 +59,6 @@ class AppearanceConfig:
     checkpoint_every: int = 50           # epochs between checkpoint callbacks
 
     def validate(self) -> None:
-        from saft.errors import SaftInputError
-
         def bad(key, why):
             raise SaftInputError(f"appearance.{key}", why)
 
@@ -82,10 +85,9 @@ class AppearanceConfig:
         return asdict(self)
 
     @staticmethod
-    def from_dict(d: dict) -> "AppearanceConfig":
-        names = {f.name for f in fields(AppearanceConfig)}
-        kw = {k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items() if k in names}
-        return AppearanceConfig(**kw)
+    def from_dict(d: dict, where: str = "appearance config") -> "AppearanceConfig":
+        """Strictly, as every saft config (saft.config_io.from_dict): unknown keys and wrong types are errors."""
+        return from_dict(AppearanceConfig, d, where, "appearance.")
 
 
 def paper_profile() -> AppearanceConfig:

@@ -14,11 +14,12 @@ import torch
 import torch.nn.functional as Fnn
 
 from saft.appearance.config import AppearanceConfig
+from saft.appearance.mitsuba_backend import load_mitsuba
 from saft.appearance.params import (EnvironmentMap, TexelMaps, TextureDecoder, colour_weight, env_amplitude,
                                     env_smoothness, linear_to_srgb, srgb_to_linear)
 from saft.appearance.renderer import ClothRenderer
 from saft.errors import SaftInputError
-from saft.io_utils import resize_images
+from saft.io_utils import atomic_path, atomic_write_json, read_image, resize_images, write_image
 from saft.scene.camera import Camera
 
 
@@ -261,40 +262,15 @@ def render_appearance(result: AppearanceResult, vertices, triangles, uvs, camera
     return out[0] if single else out
 
 
-def orbit_camera(camera: Camera, center, angle_deg: float, axis=None) -> Camera:
-    """The camera turned by `angle_deg` around the vertical axis through `center` (world point).
-
-    axis defaults to the camera's image-up direction (world). Intrinsics and image size are kept.
-    """
-    c = np.asarray(center, dtype=np.float64).reshape(3)
-    a = np.asarray(camera.up if axis is None else axis, dtype=np.float64)
-    a = a / np.linalg.norm(a)
-    th = np.radians(angle_deg)
-    Kx = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    R = np.eye(3) + np.sin(th) * Kx + (1 - np.cos(th)) * Kx @ Kx
-    M = np.eye(4)
-    M[:3, :3] = R
-    M[:3, 3] = c - R @ c
-    c2w = M @ camera.camera_to_world
-    w2c = np.linalg.inv(c2w)
-    w2c[3] = [0, 0, 0, 1]
-    return Camera(camera.K, w2c, camera.width, camera.height)
-
-
 # ---------------------------------------------------------------------------------------------- output
 def _write_exr(path: Path, image: np.ndarray) -> None:
     """Write a float32 RGB EXR atomically (Mitsuba's Bitmap writer: no extra Python dependency)."""
-    from saft.appearance.mitsuba_backend import load_mitsuba
-    from saft.io_utils import atomic_path
-
     mi = load_mitsuba("cpu")
     with atomic_path(path) as tmp:
         mi.Bitmap(np.ascontiguousarray(image, dtype=np.float32)).write(str(tmp))
 
 
 def _read_exr(path: Path) -> np.ndarray:
-    from saft.appearance.mitsuba_backend import load_mitsuba
-
     mi = load_mitsuba("cpu")
     return np.array(mi.Bitmap(str(path)), dtype=np.float32)
 
@@ -312,8 +288,6 @@ def save_appearance(result: AppearanceResult, out_dir) -> dict[str, Path]:
     envmap.exr is linear float radiance; envmap.png is a tone-mapped preview. Every file is written
     atomically. Returns the paths.
     """
-    from saft.io_utils import atomic_write_json, write_image
-
     mat = Path(out_dir) / "material"
     paths = {name: mat / f"{name}.png" for name in ("diffuse", "roughness", "metallic")}
     paths["envmap"] = mat / "envmap.exr"
@@ -331,11 +305,9 @@ def save_appearance(result: AppearanceResult, out_dir) -> dict[str, Path]:
 
 def load_appearance(out_dir) -> AppearanceResult:
     """Read what save_appearance wrote (8-bit maps: quantised) back into an AppearanceResult."""
-    from saft.io_utils import read_image
-
     mat = Path(out_dir) / "material"
     summary = json.loads((mat / "appearance.json").read_text())
-    cfg = AppearanceConfig.from_dict(summary.get("config", {}))
+    cfg = AppearanceConfig.from_dict(summary.get("config", {}), str(mat / "appearance.json"))
     return AppearanceResult(
         diffuse=srgb_to_linear(read_image(mat / "diffuse.png")[..., :3]),
         roughness=np.maximum(read_image(mat / "roughness.png")[..., 0], cfg.min_roughness),

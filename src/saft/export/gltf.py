@@ -25,24 +25,12 @@ from saft.errors import SaftInputError
 from saft.io_utils import atomic_path
 from saft.result import Result, read_result
 from saft.scene.mesh import vertex_normals
+from saft.io_utils import read_image
 
 log = logging.getLogger("saft")
 
 FLOAT, UINT16, UINT32 = 5126, 5123, 5125
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
-
-
-def up_direction(res: Result) -> np.ndarray | None:
-    """The world's up: opposite gravity (scene.json / params.json), else the camera's image-up, else None."""
-    for src in (res.scene_info, res.params):
-        g = src.get("gravity")
-        if g is not None:
-            g = np.asarray(g, dtype=np.float64).reshape(-1)
-            if g.shape == (3,) and np.linalg.norm(g) > 0:
-                return -g / np.linalg.norm(g)
-    if res.camera is not None:
-        return res.camera.up / np.linalg.norm(res.camera.up)
-    return None
 
 
 def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -69,8 +57,6 @@ def _png_bytes(img: np.ndarray) -> bytes:
 
 
 def _gray(path: Path) -> np.ndarray:
-    from saft.io_utils import read_image
-
     img = read_image(path)
     return img[:, :, :3].mean(axis=2) if img.shape[2] >= 3 else img[:, :, 0]
 
@@ -195,7 +181,7 @@ def build_gltf(res: Result, y_up: bool = True, interpolation: str = "LINEAR"):
         attributes=g.Attributes(POSITION=a_pos, NORMAL=a_nrm, TEXCOORD_0=a_uv), indices=a_idx, material=0,
         mode=4, targets=targets)], weights=[0.0] * n, extras={"targetNames": names})
     nodes = [g.Node(name="saft_world", children=[1]), g.Node(name="cloth", mesh=0)]
-    up = up_direction(res) if y_up else None
+    up = res.up_direction() if y_up else None
     if up is not None:
         rot = rotation_between(up, np.array([0.0, 1.0, 0.0]))
         nodes[0].rotation = [float(x) for x in _quat_xyzw(rot)]

@@ -22,8 +22,9 @@ import numpy as np
 
 from saft.errors import SaftInputError
 from saft.io_utils import atomic_path, read_image
+from saft.render import render_cloth
 from saft.result import Result, list_render_files, read_result
-from saft.scene.camera import Camera, look_at
+from saft.scene.camera import Camera, orbit_cameras
 
 log = logging.getLogger("saft")
 
@@ -109,40 +110,6 @@ def comparison_video(result: str | Path | Result, out: str | Path, material: boo
 
 
 # ---------------------------------------------------------------------------- orbit
-def _axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_rotvec(axis / np.linalg.norm(axis) * angle).as_matrix()
-
-
-def orbit_cameras(res: Result, n: int, width: int, height: int) -> list[Camera]:
-    """n cameras on a full circle about the up axis through the cloth's centre, looking at the centre."""
-    from saft.export.gltf import up_direction
-
-    pts = res.vertices.reshape(-1, 3)
-    centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
-    radius = max(float(np.linalg.norm(pts - centre, axis=1).max()), 1e-3)
-    up = up_direction(res)
-    up = np.array([0.0, -1.0, 0.0]) if up is None else up
-    if res.camera is not None:
-        offset = res.camera.center - centre
-    else:
-        side = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 0.0, 1.0])
-        offset = side / np.linalg.norm(side)
-    horiz = offset - (offset @ up) * up
-    if np.linalg.norm(horiz) < 0.2 * np.linalg.norm(offset):  # looking straight along up: tilt to 30°
-        ref = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 0.0, 1.0])
-        horiz = ref / np.linalg.norm(ref)
-        offset = math.cos(math.radians(30)) * horiz + math.sin(math.radians(30)) * up * np.sign(offset @ up or 1.0)
-    offset = offset / np.linalg.norm(offset) * radius * 3.0
-    dist = np.linalg.norm(offset)
-    half_fov = math.atan(1.05 * radius / math.sqrt(max(dist ** 2 - radius ** 2, 1e-12)))
-    f = 0.5 * min(width, height) / math.tan(half_fov)
-    K = np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
-    return [look_at(centre + _axis_rotation(up, 2 * math.pi * i / n) @ offset, centre, up, K, width, height)
-            for i in range(n)]
-
-
 def _orbit_texture(res: Result) -> np.ndarray:
     p = res.material_path("diffuse.png")
     if p is not None:
@@ -154,8 +121,6 @@ def _orbit_texture(res: Result) -> np.ndarray:
 
 def _render_saft(res: Result, verts: np.ndarray, cam: Camera, tex: np.ndarray) -> np.ndarray:
     import torch
-
-    from saft.render import render_cloth
 
     with torch.no_grad():
         out = render_cloth(torch.as_tensor(verts, dtype=torch.float32), torch.as_tensor(res.template.triangles),
@@ -226,13 +191,11 @@ def orbit_frames(res: Result, width: int = 480, height: int = 360, fps: float | 
     """(frame iterator, frame count, fps, renderer used) of the orbiting novel view."""
     fps = min(_fps(res), 30.0) if fps is None else float(fps)
     n_out = max(res.num_frames, int(math.ceil(min_seconds * fps)))
-    cams = orbit_cameras(res, n_out, width, height)
+    cams = orbit_cameras(res.vertices, res.camera, res.up_direction(), n_out, width, height)
     tex = _orbit_texture(res)
     use = renderer
     if renderer == "auto":
         try:
-            import saft.render  # noqa: F401
-
             _render_saft(res, res.vertices[0], cams[0], tex)
             use = "saft.render"
         except Exception as exc:  # a renderer under development must not stop the export

@@ -14,7 +14,7 @@ Public API
     differentiable in x and the log-stiffnesses (detach them for the regularizer R_E).
 
 ``PhysicsParams(log10_Y, log10_B, log10_S, damping, a_const, a_vert=None)``;
-``PhysicsParams.default(num_frames, num_vertices, device=..., requires_grad=...)``; ``params.clamp_()``
+``PhysicsParams.default(num_frames, num_vertices, device=..., requires_grad=...)``
     Paper defaults: Y = 200, B = 1e-3, S = 1e-4, damping d = 0.9 (v <- d v before every substep),
     a_const = gravity (0, -9.81, 0), a_vert (N - 1, V, 3) = 0; f_ext = m (a_const + a_vert[k]) during the
     substeps from frame k to k + 1.
@@ -39,11 +39,18 @@ fallback.
 """
 
 from saft.physics.energy import ElementEval, deformation_energy
-from saft.physics.simulation import GRAVITY, LOG10_LIMITS, PhysicsParams, rollout
-from saft.physics.topology import ClothTopology
+from saft.physics.simulation import (DEFAULT_DAMPING, DEFAULT_LOG10_B, DEFAULT_LOG10_S, DEFAULT_LOG10_Y,
+                                     DEFAULT_SUBSTEPS, GRAVITY, LOG10_LIMITS, PhysicsParams, rollout)
+from saft.physics.topology import DEFAULT_DENSITY, ClothTopology
 
 __all__ = [
     "ClothTopology",
+    "DEFAULT_DAMPING",
+    "DEFAULT_DENSITY",
+    "DEFAULT_LOG10_B",
+    "DEFAULT_LOG10_S",
+    "DEFAULT_LOG10_Y",
+    "DEFAULT_SUBSTEPS",
     "ElementEval",
     "GRAVITY",
     "LOG10_LIMITS",

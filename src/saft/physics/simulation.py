@@ -33,6 +33,7 @@ DEFAULT_LOG10_Y = math.log10(200.0)  # paper, supplementary table: Y = 200, B = 
 DEFAULT_LOG10_B = -3.0
 DEFAULT_LOG10_S = -4.0
 DEFAULT_DAMPING = 0.9  # v <- 0.9 v per substep (paper, supplementary "Damping")
+DEFAULT_SUBSTEPS = 4  # simulation steps per video frame
 LOG10_LIMITS = {"log10_Y": (1.0, 3.0), "log10_B": (-5.0, -2.0), "log10_S": (-4.0, -2.0)}  # REFERENCE.md
 
 
@@ -75,13 +76,6 @@ class PhysicsParams:
 
     def tensors(self):
         return (self.log10_Y, self.log10_B, self.log10_S, self.damping, self.a_const, self.a_vert)
-
-    def clamp_(self) -> "PhysicsParams":
-        """Clamp the log-stiffnesses to the published ranges, in place (call after each optimizer step)."""
-        with torch.no_grad():
-            for name, (lo, hi) in LOG10_LIMITS.items():
-                getattr(self, name).clamp_(lo, hi)
-        return self
 
 
 CHOLMOD_AUTO_MAX_UNKNOWNS = 5000
@@ -350,7 +344,7 @@ def rollout(
     params: PhysicsParams | None = None,
     *,
     num_frames: int,
-    substeps: int = 4,
+    substeps: int = DEFAULT_SUBSTEPS,
     frame_dt: float = 0.02,
     pinned=None,
     pinned_positions=None,

@@ -7,12 +7,15 @@ and unknown keys or wrong types are rejected (saft.config_io).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
 from saft.appearance.config import AppearanceConfig, cpu_profile
+from saft.config_io import from_dict, load_toml, merge_overrides, to_dict
+from saft.device import resolve_device
+from saft.physics import (DEFAULT_DAMPING, DEFAULT_DENSITY, DEFAULT_LOG10_B, DEFAULT_LOG10_S, DEFAULT_LOG10_Y,
+                          DEFAULT_SUBSTEPS, LOG10_LIMITS)
 
 
 @dataclass
@@ -44,18 +47,20 @@ class TextureConfig:
 
 @dataclass
 class PhysicsConfig:
-    substeps: int = 4                     # simulation steps per video frame (h = frame_dt / substeps)
-    density: float = 0.1                  # kg/m² (areal density; only the ratio force/mass matters)
-    damping: float = 0.9                  # velocity factor applied before each substep
+    """Simulation settings of phase 2; defaults and stiffness ranges are saft.physics's (one copy)."""
+
+    substeps: int = DEFAULT_SUBSTEPS      # simulation steps per video frame (h = frame_dt / substeps)
+    density: float = DEFAULT_DENSITY      # kg/m² (areal density; only the ratio force/mass matters)
+    damping: float = DEFAULT_DAMPING      # velocity factor applied before each substep
     # Element Hessians in the implicit step: "projected" (each clamped to PSD: the system is always positive
     # definite) or "exact" (the reference's; may be indefinite when the cloth is compressed).
     hessian: Literal["projected", "exact"] = "projected"
-    log10_Y_init: float = math.log10(200.0)
-    log10_B_init: float = -3.0
-    log10_S_init: float = -4.0
-    log10_Y_range: tuple[float, float] = (1.0, 3.0)
-    log10_B_range: tuple[float, float] = (-5.0, -2.0)
-    log10_S_range: tuple[float, float] = (-4.0, -2.0)
+    log10_Y_init: float = DEFAULT_LOG10_Y
+    log10_B_init: float = DEFAULT_LOG10_B
+    log10_S_init: float = DEFAULT_LOG10_S
+    log10_Y_range: tuple[float, float] = LOG10_LIMITS["log10_Y"]
+    log10_B_range: tuple[float, float] = LOG10_LIMITS["log10_B"]
+    log10_S_range: tuple[float, float] = LOG10_LIMITS["log10_S"]
 
 
 @dataclass
@@ -113,8 +118,6 @@ def load_saft_config(path: str | Path | None = None, overrides: list[str] | None
     will be on the CPU (else from the paper's settings) and the user's explicit appearance values are
     applied on top; the saved config.toml then names the profile it used ("cpu" or "paper").
     """
-    from saft.config_io import from_dict, load_toml, merge_overrides, to_dict
-
     data = load_toml(path) if path else {}
     where = str(path) if path else "config"
     if overrides:
@@ -122,8 +125,6 @@ def load_saft_config(path: str | Path | None = None, overrides: list[str] | None
         where = f"{path} + --set" if path else "--set"
     cfg = from_dict(SaftConfig, data, where)
     if cfg.appearance.profile == "auto":
-        from saft.reconstruct.pipeline import resolve_device
-
         on_cpu = resolve_device(cfg.run.device).type == "cpu"
         base = cpu_profile(AppearanceConfig()) if on_cpu else AppearanceConfig(profile="paper")
         user = {k: v for k, v in data.get("appearance", {}).items() if k != "profile"}

@@ -6,6 +6,7 @@ column j has its centre at (u = j, v = i). Readers convert every other conventio
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -177,3 +178,70 @@ def look_at(eye, target, up, K: np.ndarray, width: int, height: int) -> Camera:
     T[:3, :3] = R
     T[:3, 3] = -R @ eye
     return Camera(K, T, width, height)
+
+
+# ---------------------------------------------------------------------------------------------- orbits
+def up_direction(gravities, camera: Camera | None) -> np.ndarray | None:
+    """The world's up: opposite the first usable vector of `gravities` (each None or 3 numbers), else the
+    camera's image-up, else None."""
+    for g in gravities:
+        if g is not None:
+            g = np.asarray(g, dtype=np.float64).reshape(-1)
+            if g.shape == (3,) and np.linalg.norm(g) > 0:
+                return -g / np.linalg.norm(g)
+    if camera is not None:
+        return camera.up / np.linalg.norm(camera.up)
+    return None
+
+
+def orbit_camera(camera: Camera, center, angle_deg: float, axis=None) -> Camera:
+    """The camera turned by `angle_deg` around the vertical axis through `center` (world point).
+
+    axis defaults to the camera's image-up direction (world). Intrinsics and image size are kept.
+    """
+    c = np.asarray(center, dtype=np.float64).reshape(3)
+    a = np.asarray(camera.up if axis is None else axis, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    th = np.radians(angle_deg)
+    Kx = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    R = np.eye(3) + np.sin(th) * Kx + (1 - np.cos(th)) * Kx @ Kx
+    M = np.eye(4)
+    M[:3, :3] = R
+    M[:3, 3] = c - R @ c
+    c2w = M @ camera.camera_to_world
+    w2c = np.linalg.inv(c2w)
+    w2c[3] = [0, 0, 0, 1]
+    return Camera(camera.K, w2c, camera.width, camera.height)
+
+
+def axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(axis / np.linalg.norm(axis) * angle).as_matrix()
+
+
+def orbit_cameras(points: np.ndarray, camera: Camera | None, up: np.ndarray | None, n: int, width: int,
+                  height: int) -> list[Camera]:
+    """n cameras on a full circle about the `up` axis (default −y) through the centre of `points` (…, 3),
+    looking at the centre, starting from the direction of `camera` (if any)."""
+    pts = np.asarray(points).reshape(-1, 3)
+    centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+    radius = max(float(np.linalg.norm(pts - centre, axis=1).max()), 1e-3)
+    up = np.array([0.0, -1.0, 0.0]) if up is None else up
+    if camera is not None:
+        offset = camera.center - centre
+    else:
+        side = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 0.0, 1.0])
+        offset = side / np.linalg.norm(side)
+    horiz = offset - (offset @ up) * up
+    if np.linalg.norm(horiz) < 0.2 * np.linalg.norm(offset):  # looking straight along up: tilt to 30°
+        ref = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 0.0, 1.0])
+        horiz = ref / np.linalg.norm(ref)
+        offset = math.cos(math.radians(30)) * horiz + math.sin(math.radians(30)) * up * np.sign(offset @ up or 1.0)
+    offset = offset / np.linalg.norm(offset) * radius * 3.0
+    dist = np.linalg.norm(offset)
+    half_fov = math.atan(1.05 * radius / math.sqrt(max(dist ** 2 - radius ** 2, 1e-12)))
+    f = 0.5 * min(width, height) / math.tan(half_fov)
+    K = np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+    return [look_at(centre + axis_rotation(up, 2 * math.pi * i / n) @ offset, centre, up, K, width, height)
+            for i in range(n)]

@@ -11,7 +11,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from saft.appearance.params import linear_to_srgb
+from saft.appearance.renderer import ClothRenderer
 from saft.scene.camera import Camera, look_at
+from saft.synthetic.hanging_cloth import grid_template
 
 
 @dataclass
@@ -31,9 +34,7 @@ class SyntheticScene:
 
 def grid_sheet(n_quads: int = 16, size: float = 1.0):
     """A square sheet of n×n quads in the x-y plane centred at the origin, row 0 at the top; returns
-    vertices, quads, uvs (saft.scene.synthetic.grid_template)."""
-    from saft.scene.synthetic import grid_template
-
+    vertices, quads, uvs (saft.synthetic.hanging_cloth.grid_template)."""
     mesh = grid_template(n_quads + 1, size)
     return mesh.vertices, mesh.quads, mesh.uvs
 
@@ -107,9 +108,6 @@ def render_targets(scene: SyntheticScene, spp: int = 128, device="cpu", camera: 
                    vertices: np.ndarray | None = None):
     """sRGB renders (F, H, W, 3) of the scene's ground-truth appearance and coverage masks (F, H, W)."""
     import torch
-
-    from saft.appearance.params import linear_to_srgb
-    from saft.appearance.renderer import ClothRenderer
 
     cam = camera or scene.camera
     verts = scene.vertices if vertices is None else vertices

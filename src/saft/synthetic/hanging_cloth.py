@@ -12,9 +12,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from saft.evaluate.metrics import sample_surface
+from saft.io_utils import atomic_save_npy
+from saft.physics import ClothTopology, PhysicsParams, rollout
+from saft.render import render_cloth
 from saft.scene.camera import look_at
 from saft.scene.frames import FrameSequence
 from saft.scene.mesh import QuadMesh
+from saft.scene.native import write_native_scene
 from saft.scene.scene import Scene
 
 
@@ -85,10 +90,6 @@ def gust_accelerations(template: np.ndarray, frames: int, frame_dt: float, peak:
 def make_hanging_cloth(spec: HangingClothSpec = HangingClothSpec(), device="cpu"):
     """Simulate and render the scene. Returns (scene without frames on disk, rgb (F,H,W,3), mask (F,H,W),
     ground-truth vertices (F,V,3), ground-truth point clouds [F × (P,3)])."""
-    from saft.evaluate.metrics import sample_surface
-    from saft.physics import ClothTopology, PhysicsParams, rollout
-    from saft.render import render_cloth
-
     template = grid_template(spec.grid, spec.size)
     gravity = np.array([0.0, -9.81, 0.0])
     top_row = np.arange(spec.grid)
@@ -123,11 +124,7 @@ def make_hanging_cloth(spec: HangingClothSpec = HangingClothSpec(), device="cpu"
 
 def write_hanging_cloth(folder: str | Path, spec: HangingClothSpec = HangingClothSpec(), device="cpu") -> Path:
     """Make the synthetic scene and write it as a native scene folder with ground truth (gt/*.npy)."""
-    from saft.scene.native import write_native_scene
-
     scene, rgb, mask, positions, gt_points = make_hanging_cloth(spec, device)
     folder = write_native_scene(folder, scene, rgb, mask, ground_truth=gt_points)
-    from saft.io_utils import atomic_save_npy
-
     atomic_save_npy(Path(folder) / "gt_vertices.npy", positions.astype(np.float32))
     return Path(folder)
