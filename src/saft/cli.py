@@ -19,7 +19,14 @@ import sys
 from pathlib import Path
 
 from saft import __version__
+from saft.demo import run_demo
 from saft.errors import BackendUnavailableError, SaftInputError, SimulationError
+from saft.evaluate import evaluate_result_dir, format_metrics_table, ground_truth_spec_for, ground_truth_spec_from_path
+from saft.export import export_command, report_command
+from saft.reconstruct import reconstruct
+from saft.reconstruct.config import load_saft_config
+from saft.scene import load_scene
+from saft.scene.frames import check_all_frames
 
 log = logging.getLogger("saft")
 
@@ -41,8 +48,6 @@ def _add_common(p: argparse.ArgumentParser) -> None:
 
 # ---------------------------------------------------------------------------- subcommands
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from saft.evaluate import evaluate_result_dir, format_metrics_table, ground_truth_spec_from_path
-
     spec = ground_truth_spec_from_path(args.gt, frame=args.gt_frame, flip_axes=args.flip, root=args.root)
     metrics = evaluate_result_dir(args.result_dir, spec, seed=args.seed, allow_partial=args.allow_partial)
     print(format_metrics_table(metrics))
@@ -51,8 +56,6 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def _load_config(args: argparse.Namespace):
-    from saft.reconstruct.config import load_saft_config
-
     overrides = list(args.set or [])
     if getattr(args, "device", None):
         overrides.append(f'run.device="{args.device}"')
@@ -60,9 +63,6 @@ def _load_config(args: argparse.Namespace):
 
 
 def cmd_reconstruct(args: argparse.Namespace) -> int:
-    from saft.reconstruct import reconstruct
-    from saft.scene import load_scene
-
     cfg = _load_config(args)
     scene = load_scene(args.scene, root=args.root)
     if args.frames:
@@ -70,8 +70,6 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     outcome = reconstruct(scene, cfg, args.out, resume=args.resume, quiet=args.quiet)
     log.info("result written to %s", outcome.out_dir)
     if args.gt is not None:
-        from saft.evaluate import evaluate_result_dir, format_metrics_table, ground_truth_spec_for
-
         spec = ground_truth_spec_for(scene, None if args.gt == "scene" else args.gt, root=args.root)
         metrics = evaluate_result_dir(args.out, spec, allow_partial=bool(args.frames))
         print(format_metrics_table(metrics))
@@ -79,15 +77,11 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from saft.demo import run_demo
-
     run_demo(args.out, quiet=args.quiet, device=args.device)
     return 0
 
 
 def cmd_inspect(args: argparse.Namespace) -> int:
-    from saft.scene import load_scene
-
     scene = load_scene(args.scene, root=args.root)
     cam = scene.working_camera()
     print(f"scene {scene.name}: {scene.num_frames} frames of {scene.camera.width}x{scene.camera.height}"
@@ -100,24 +94,18 @@ def cmd_inspect(args: argparse.Namespace) -> int:
           f"  pinned={0 if scene.pinned is None else len(scene.pinned)}  texture={'yes' if scene.texture is not None else 'no'}"
           f"  ground truth={scene.ground_truth_dir or 'none'}")
     if args.all_frames:
-        from saft.scene.frames import check_all_frames
-
         check_all_frames(scene.frames)
         print("all frames readable and of the same size")
     return 0
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from saft.export import report_command
-
     path = report_command(args.result_dir, args.out)
     print(f"wrote {path}")
     return 0
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from saft.export import export_command
-
     for path in export_command(args.result_dir, video=args.video, gltf=args.gltf, sequence=args.sequence,
                                out_dir=args.out):
         print(f"wrote {path}")

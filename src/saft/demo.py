@@ -5,6 +5,12 @@ from __future__ import annotations
 import logging
 import time
 from pathlib import Path
+from saft.evaluate import evaluate_result_dir, evaluate_static_template, format_comparison_table, ground_truth_spec_for
+from saft.reconstruct import reconstruct
+from saft.reconstruct.checkpoint import checkpoint_path
+from saft.reconstruct.config import load_saft_config
+from saft.scene import load_scene
+from saft.synthetic.hanging_cloth import HangingClothSpec, write_hanging_cloth
 
 
 log = logging.getLogger("saft")
@@ -15,12 +21,6 @@ DEMO_OVERRIDES = ["texture.epochs=100", "texture.size=256"]
 
 def run_demo(out: str | Path, quiet: bool = False, device: str = "auto", overrides: list[str] | None = None,
              spec=None) -> dict:
-    from saft.evaluate import evaluate_result_dir, evaluate_static_template, format_comparison_table, \
-        ground_truth_spec_for
-    from saft.reconstruct import reconstruct
-    from saft.scene import load_scene
-    from saft.scene.synthetic import HangingClothSpec, write_hanging_cloth
-
     out = Path(out)
     t0 = time.perf_counter()
     scene_dir = out / "scene"
@@ -28,11 +28,7 @@ def run_demo(out: str | Path, quiet: bool = False, device: str = "auto", overrid
         log.info("making the synthetic scene in %s", scene_dir)
         write_hanging_cloth(scene_dir, spec or HangingClothSpec())
     scene = load_scene(scene_dir)
-    from saft.reconstruct.config import load_saft_config
-
     cfg = load_saft_config(None, DEMO_OVERRIDES + [f'run.device="{device}"'] + list(overrides or []))
-    from saft.reconstruct.checkpoint import checkpoint_path
-
     reconstruct(scene, cfg, out, resume=checkpoint_path(out).is_file(), quiet=quiet)
     spec_gt = ground_truth_spec_for(scene, None)
     ours = evaluate_result_dir(out, spec_gt)

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Iterator
 
 import numpy as np
+from saft.errors import SaftInputError
 
 
 @contextmanager
@@ -64,8 +65,6 @@ def read_image(path: str | Path) -> np.ndarray:
     Raises SaftInputError naming the file when it is missing or cannot be decoded.
     """
     import imageio.v3 as iio
-
-    from saft.errors import SaftInputError
 
     path = Path(path)
     if not path.is_file():

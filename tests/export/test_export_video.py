@@ -5,9 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from saft.export import commands as export_commands
 from saft.export import export_command
 from saft.export import video as V
 from saft.result import read_result
+from saft.scene.camera import orbit_cameras
 
 
 def test_comparison_videos(result_dir, tmp_path):
@@ -44,7 +46,7 @@ def test_orbit_video(result_dir, tmp_path, renderer):
 
 def test_orbit_cameras_circle_the_cloth(result_dir):
     res = read_result(result_dir)
-    cams = V.orbit_cameras(res, 8, 64, 48)
+    cams = orbit_cameras(res.vertices, res.camera, res.up_direction(), 8, 64, 48)
     centre = 0.5 * (res.vertices.reshape(-1, 3).min(0) + res.vertices.reshape(-1, 3).max(0))
     d = [np.linalg.norm(c.center - centre) for c in cams]
     np.testing.assert_allclose(d, d[0], rtol=1e-9)
@@ -58,7 +60,8 @@ def test_orbit_cameras_circle_the_cloth(result_dir):
 def test_export_video_command(bare_result_dir, monkeypatch):
     # keep the orbit short and small in the command test
     orig = V.orbit_video
-    monkeypatch.setattr(V, "orbit_video", lambda res, out, **kw: orig(res, out, width=64, height=48, min_seconds=0))
+    monkeypatch.setattr(export_commands, "orbit_video",
+                        lambda res, out, **kw: orig(res, out, width=64, height=48, min_seconds=0))
     written = export_command(bare_result_dir, video=True)
     names = sorted(p.name for p in written)
     assert names == ["comparison.mp4", "orbit.mp4"]  # no material/renders → no appearance video

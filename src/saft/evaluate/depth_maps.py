@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from saft.render import render_cloth
 from saft.scene.camera import Camera
 
 POINTS_PER_PIXEL = 2.0
@@ -44,8 +45,6 @@ def point_cloud_depth(points: np.ndarray, camera: Camera) -> np.ndarray:
 
 def mesh_depth(vertices: np.ndarray, triangles: np.ndarray, camera: Camera) -> np.ndarray:
     """(H, W) camera-z of the visible surface of the world-frame mesh, NaN where empty (saft.render, CPU)."""
-    from saft.render import render_cloth
-
     v = torch.as_tensor(np.asarray(vertices), dtype=torch.float32)
     uvs = torch.zeros(len(v), 2)
     with torch.no_grad():

@@ -11,12 +11,13 @@ from typing import Sequence
 import numpy as np
 
 from saft.errors import SaftInputError
+from saft.evaluate.depth_maps import depth_pairs
 from saft.evaluate.ground_truth import GroundTruthSpec, ground_truth_files, load_ground_truth_frames
-from saft.evaluate.metrics import (
-    CD1, CD2, DEPTH, METRIC_KEYS, NUM_POINTS, P2S_L1, P2S_L2, P2S_SYM_L1, P2S_SYM_L2,
-    depth_error_cm, frame_metrics, frame_rng,
-)
+from saft.evaluate.metrics import (CD1, CD2, DEPTH, METRIC_KEYS, NUM_POINTS, P2S_L1, P2S_L2, P2S_SYM_L1, P2S_SYM_L2,
+                                   depth_error_cm, frame_metrics, frame_rng)
 from saft.io_utils import atomic_write_json
+from saft.result import write_depth_pair
+from saft.scene.camera import Camera
 from saft.scene.mesh import QuadMesh, read_obj
 
 METRICS_FILENAME = "metrics.json"
@@ -151,8 +152,6 @@ def evaluate_result_dir(result_dir: str | Path, gt_spec: GroundTruthSpec, seed: 
         "ground_truth_files": [p.name for p in gt_files[:n]],
     }
     if write:
-        from saft.result import write_depth_pair
-
         for i, (rendered, target) in enumerate(pairs or []):
             write_depth_pair(result_dir, i, rendered, target)
         atomic_write_json(result_dir / METRICS_FILENAME, _json_safe(metrics))
@@ -163,9 +162,6 @@ def _depth_pairs_from_clouds(result_dir: Path, meshes: list, gt_frames: list[np.
     """Depth maps of the meshes and of the clouds in the result's working camera (saft.evaluate.depth_maps),
     or None when the result folder does not say its camera (meshes of another method)."""
     import json
-
-    from saft.evaluate.depth_maps import depth_pairs
-    from saft.scene.camera import Camera
 
     info = result_dir / "scene.json"
     try:

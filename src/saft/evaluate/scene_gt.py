@@ -10,6 +10,7 @@ from saft.errors import SaftInputError
 from saft.evaluate.depth_maps import depth_pairs
 from saft.evaluate.evaluate import _COLUMNS, evaluate_sequence
 from saft.evaluate.ground_truth import GroundTruthSpec, load_ground_truth_frames
+from saft.scene import load_scene
 
 
 def ground_truth_spec_for(scene, path: str | Path | None = None, *, frame: str | None = None,
@@ -34,8 +35,6 @@ def ground_truth_spec_from_path(path: str | Path, *, frame: str | None = None, f
     path = Path(path)
     is_scene = path.suffix.lower() == ".json" or (path.is_dir() and (path / "template.obj").is_file())
     if is_scene:
-        from saft.scene import load_scene
-
         return ground_truth_spec_for(load_scene(path, root=root), None, frame=frame, flip_axes=flip_axes)
     if not path.exists():
         raise SaftInputError(path, "ground truth not found")

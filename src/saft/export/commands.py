@@ -6,6 +6,11 @@ import logging
 from pathlib import Path
 
 from saft.errors import SaftInputError
+from saft.export.gltf import write_glb
+from saft.export.report import write_report
+from saft.export.sequence import write_sequence
+from saft.export.video import comparison_video, orbit_video
+from saft.result import list_render_files, read_result
 
 log = logging.getLogger("saft")
 
@@ -14,8 +19,6 @@ DEFAULT_EXPORT_DIR = "export"
 
 def report_command(result_dir: str | Path, out: str | Path | None = None) -> Path:
     """Write the self-contained HTML report of a result folder (default DIR/report.html)."""
-    from saft.export.report import write_report
-
     return write_report(result_dir, out)
 
 
@@ -26,8 +29,6 @@ def export_command(result_dir: str | Path, video: bool = False, gltf: str | Path
     Videos go to OUT_DIR (default DIR/export/), a sequence to OUT_DIR/obj/ or OUT_DIR/ply/; the .glb to the
     path given. Returns every file written. Raises SaftInputError when nothing is asked for or input is bad.
     """
-    from saft.result import list_render_files, read_result
-
     if not video and gltf is None and sequence is None:
         raise SaftInputError(None, "nothing to export: give --video, --gltf FILE.glb and/or --sequence obj|ply")
     if sequence is not None and sequence not in ("obj", "ply"):
@@ -38,16 +39,10 @@ def export_command(result_dir: str | Path, video: bool = False, gltf: str | Path
     out_dir = Path(out_dir) if out_dir is not None else res.folder / DEFAULT_EXPORT_DIR
     written: list[Path] = []
     if gltf is not None:
-        from saft.export.gltf import write_glb
-
         written.append(write_glb(res, gltf))
     if sequence is not None:
-        from saft.export.sequence import write_sequence
-
         written += write_sequence(res, out_dir / sequence, sequence)
     if video:
-        from saft.export.video import comparison_video, orbit_video
-
         if list_render_files(res.folder):
             written.append(comparison_video(res, out_dir / "comparison.mp4")[0])
         else:

@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+from saft.io_utils import read_image
 
 # columns of log.csv that are not loss terms
 LOG_META_COLUMNS = {"phase", "epoch", "frames", "frames_in_use", "seconds", "time", "lr", "step"}
@@ -168,8 +169,6 @@ def timings_figure(timings: dict[str, float]) -> bytes:
 
 def contact_sheet(paths: list[Path], max_frames: int = 8, title: str = "") -> bytes:
     """Up to `max_frames` evenly spaced frame images, one per row, each labelled with its file name."""
-    from saft.io_utils import read_image
-
     plt = _plt()
     if len(paths) > max_frames:
         idx = np.unique(np.round(np.linspace(0, len(paths) - 1, max_frames)).astype(int))

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from saft.physics import ClothTopology, PhysicsParams, deformation_energy, rollout
 from saft.reconstruct.config import PhysicsConfig, ShapeConfig, shape_schedule
 from saft.reconstruct.context import PhaseContext
 from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_loss
@@ -96,8 +97,6 @@ class ShapeSimulator:
 
     def __init__(self, template: torch.Tensor, quads: np.ndarray, phys: PhysicsConfig, frame_dt: float,
                  pinned: np.ndarray | None):
-        from saft.physics import ClothTopology
-
         self.phys = phys
         self.frame_dt = frame_dt
         self.template = template
@@ -107,8 +106,6 @@ class ShapeSimulator:
 
     def simulate(self, params: ShapeParams, num_frames: int) -> torch.Tensor:
         """(num_frames, V, 3) positions, frame 0 = template."""
-        from saft.physics import PhysicsParams, rollout
-
         damping = torch.tensor(self.phys.damping, dtype=self.template.dtype, device=self.template.device)
         physics = PhysicsParams(log10_Y=params.log10_Y, log10_B=params.log10_B, log10_S=params.log10_S,
                                 damping=damping, a_const=params.const_accel,
@@ -119,8 +116,6 @@ class ShapeSimulator:
 
     def energy(self, positions: torch.Tensor, params: ShapeParams) -> torch.Tensor:
         """Deformation energy of each frame (F,), stiffnesses detached (for R_E)."""
-        from saft.physics import deformation_energy
-
         return deformation_energy(positions, self.topology, params.log10_Y.detach(), params.log10_B.detach(),
                                   params.log10_S.detach())
 

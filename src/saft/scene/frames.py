@@ -10,7 +10,7 @@ from typing import Iterator, Sequence
 import numpy as np
 
 from saft.errors import SaftInputError
-from saft.io_utils import read_image
+from saft.io_utils import read_image, resize_images
 from saft.scene.camera import Crop
 
 log = logging.getLogger("saft")
@@ -112,8 +112,6 @@ class FrameSequence:
 def _resize(img: np.ndarray, height: int, width: int) -> np.ndarray:
     """(H, W, C) numpy image resized with saft.io_utils.resize_images (area down, bilinear up)."""
     import torch
-
-    from saft.io_utils import resize_images
 
     return resize_images(torch.from_numpy(np.ascontiguousarray(img))[None], height, width)[0].numpy()
 

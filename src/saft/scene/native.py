@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from saft.errors import SaftInputError
-from saft.io_utils import atomic_write_json, read_image, write_image
+from saft.io_utils import atomic_save_npy, atomic_write_json, read_image, write_image
 from saft.scene.camera import Camera, Crop
 from saft.scene.frames import check_all_frames, frame_sequence_from_folders
 from saft.scene.mesh import read_obj, write_obj
@@ -173,8 +173,6 @@ def write_native_scene(folder: str | Path, scene: Scene, rgb: np.ndarray, mask: 
     if scene.crop is not None:
         meta["crop"] = scene.crop.to_json()
     if ground_truth is not None:
-        from saft.io_utils import atomic_save_npy
-
         for i, pts in enumerate(ground_truth):
             atomic_save_npy(folder / "gt" / f"frame_{i:0{digits}d}.npy", np.asarray(pts, dtype=np.float32))
         meta["ground_truth"] = {"dir": "gt", "frame": "world"}
