@@ -50,8 +50,18 @@ def write_image(path: Path, img: np.ndarray) -> None:
 @pytest.fixture
 def native_scene(tmp_path: Path) -> Path:
     """A minimal valid native scene: 4×4 grid, 3 frames of 40×32 px with masks, scene.json."""
-    folder = tmp_path / "scene"
-    folder.mkdir()
+    return make_native_scene(tmp_path / "scene")
+
+
+@pytest.fixture(scope="session")
+def native_scene_factory():
+    """make_native_scene, for fixtures of a wider scope than native_scene's."""
+    return make_native_scene
+
+
+def make_native_scene(folder: Path) -> Path:
+    """Write the scene of the `native_scene` fixture into `folder` (for fixtures of other scopes)."""
+    folder.mkdir(parents=True)
     (folder / "template.obj").write_text(grid_quad_obj())
     cam = {"width": 40, "height": 32, "K": [[40, 0, 19.5], [0, 40, 15.5], [0, 0, 1]],
            "world_to_camera": np.eye(4).tolist(), "distortion": [0, 0, 0, 0], "note": "extra keys are ignored"}

@@ -16,14 +16,17 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+import warnings
 from pathlib import Path
 
 from saft import __version__
 from saft.demo import run_demo
 from saft.errors import BackendUnavailableError, SaftInputError, SimulationError
-from saft.evaluate import evaluate_result_dir, format_metrics_table, ground_truth_spec_for, ground_truth_spec_from_path
+from saft.evaluate import (evaluate_result_dir, format_metrics_table, ground_truth_files, ground_truth_spec_for,
+                           ground_truth_spec_from_path)
 from saft.export import export_command, report_command
 from saft.reconstruct import reconstruct
+from saft.reconstruct.checkpoint import checkpoint_path
 from saft.reconstruct.config import load_saft_config
 from saft.scene import load_scene
 from saft.scene.frames import check_all_frames
@@ -39,6 +42,13 @@ def _setup_logging(quiet: bool, debug: bool) -> None:
     level = logging.DEBUG if debug else (logging.WARNING if quiet else logging.INFO)
     handler = RichHandler(show_time=False, show_path=False, markup=False, rich_tracebacks=debug)
     logging.basicConfig(level=level, format="%(message)s", handlers=[handler], force=True)
+    if not debug:
+        warnings.showwarning = _warning_as_log_line
+
+
+def _warning_as_log_line(message, category, filename, lineno, file=None, line=None) -> None:
+    """Python warnings (saft's own and its libraries') as one log line, without the source line."""
+    log.warning("%s", message)
 
 
 def _add_common(p: argparse.ArgumentParser) -> None:
@@ -63,14 +73,32 @@ def _load_config(args: argparse.Namespace):
 
 
 def cmd_reconstruct(args: argparse.Namespace) -> int:
+    if args.frames is not None and args.frames < 2:
+        raise SaftInputError("--frames", f"must be at least 2 (frame 0 is the template), got {args.frames}")
+    if args.resume and args.overwrite:
+        raise SaftInputError("--overwrite", "cannot be combined with --resume")
     cfg = _load_config(args)
     scene = load_scene(args.scene, root=args.root)
     if args.frames:
+        if args.frames > scene.num_frames:
+            log.warning("--frames %d: the scene has only %d frames; using all of them", args.frames, scene.num_frames)
         scene = scene.with_frames(min(args.frames, scene.num_frames))
-    outcome = reconstruct(scene, cfg, args.out, resume=args.resume, quiet=args.quiet)
-    log.info("result written to %s", outcome.out_dir)
-    if args.gt is not None:
+    spec = None
+    if args.gt is not None:   # checked now, not after the reconstruction
         spec = ground_truth_spec_for(scene, None if args.gt == "scene" else args.gt, root=args.root)
+        count = len(ground_truth_files(spec))
+        if count < scene.num_frames or (count > scene.num_frames and not args.frames):
+            raise SaftInputError(spec.directory, f"has {count} ground-truth frames but the scene has "
+                                                 f"{scene.num_frames} frames")
+    try:
+        outcome = reconstruct(scene, cfg, args.out, resume=args.resume, overwrite=args.overwrite, quiet=args.quiet)
+    except KeyboardInterrupt as exc:
+        if not str(exc) and checkpoint_path(args.out).is_file():
+            raise KeyboardInterrupt(f"interrupted; continue with --resume (checkpoint in "
+                                    f"{checkpoint_path(args.out).parent})") from None
+        raise
+    log.info("result written to %s", outcome.out_dir)
+    if spec is not None:
         metrics = evaluate_result_dir(args.out, spec, allow_partial=bool(args.frames))
         print(format_metrics_table(metrics))
     return 0
@@ -94,8 +122,8 @@ def cmd_inspect(args: argparse.Namespace) -> int:
           f"  pinned={0 if scene.pinned is None else len(scene.pinned)}  texture={'yes' if scene.texture is not None else 'no'}"
           f"  ground truth={scene.ground_truth_dir or 'none'}")
     if args.all_frames:
-        check_all_frames(scene.frames)
-        print("all frames readable and of the same size")
+        check_all_frames(scene.working_frames(), decode=True)
+        print("all frames readable, of the same size, with non-empty masks")
     return 0
 
 
@@ -129,7 +157,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     p = sub.add_parser("demo", help="reconstruct a built-in synthetic example and print its accuracy")
-    p.add_argument("--out", type=Path, default=Path("saft-demo"), help="result folder (default ./saft-demo)")
+    p.add_argument("--out", type=Path, default=Path("saft-demo"), help="folder for the scene/ and the result/ (default ./saft-demo)")
     p.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto")
     _add_common(p)
     p.set_defaults(func=cmd_demo)
@@ -143,7 +171,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", type=Path, default=None, help="a TOML config (see a result's config.toml)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override one config value, e.g. --set shape.lambda_force=0 (repeatable)")
-    p.add_argument("--resume", action="store_true", help="continue an interrupted run from OUT/checkpoint")
+    p.add_argument("--resume", action="store_true",
+                   help="continue an interrupted run from OUT/checkpoint (same scene and config only)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the saft result already in OUT (without it saft refuses to write there)")
     p.add_argument("--gt", nargs="?", const="scene", default=None, type=str,
                    help="evaluate against ground truth afterwards (default: the scene's own)")
     p.add_argument("--frames", type=int, default=None, help="use only the first N frames")
@@ -218,6 +249,6 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"saft: simulation failed: {exc}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print("saft: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        print(f"saft: {exc}" if str(exc) else "saft: interrupted", file=sys.stderr)
         return 130

@@ -18,7 +18,7 @@
                              rasterized and the ground-truth cloud projected (the pairs compared for depth_cm)
       material/              phase 3: diffuse.png, roughness.png, metallic.png, envmap.exr (+ envmap.png),
                              renders/frame_000.png re-renders, novel_view.png
-      checkpoint/            state for --resume (removed only by the user)
+      checkpoint/            state for --resume (removed only by the user or by --overwrite)
       report.html            saft report (saft.export); export/ holds what `saft export` writes by default
 
 Every file is written atomically (saft.io_utils), so an interrupted run never leaves a half-written one.
@@ -48,13 +48,40 @@ def mesh_path(result_dir: str | Path, frame: int) -> Path:
 
 
 def list_mesh_files(result_dir: str | Path) -> list[Path]:
+    """meshes/frame_000.obj … in frame order; SaftInputError unless the frame numbers run 0, 1, … without
+    a gap and match the frame count that scene.json states (an incomplete or mixed result)."""
     folder = Path(result_dir) / MESH_DIR
     if not folder.is_dir():
         raise SaftInputError(folder, "no meshes/ folder: not a saft result (expected meshes/frame_000.obj …)")
-    files = sorted(folder.glob("frame_*.obj"))
+    files = list(folder.glob("frame_*.obj"))
     if not files:
         raise SaftInputError(folder, "no frame_*.obj meshes in this folder")
-    return files
+    return check_frame_numbers(files, Path(result_dir))
+
+
+def check_frame_numbers(files: list[Path], result_dir: Path) -> list[Path]:
+    """`files` named frame_<number>.<ext>, sorted by number; SaftInputError naming the first missing frame."""
+    numbered = {}
+    for f in files:
+        digits = f.stem[len("frame_"):]
+        if not digits.isdigit():
+            raise SaftInputError(f, "is not named frame_<number>: not a file of a saft result")
+        if int(digits) in numbered:
+            raise SaftInputError(f, f"is frame {int(digits)} again (also {numbered[int(digits)].name})")
+        numbered[int(digits)] = f
+    expected = len(numbered)
+    info = result_dir / "scene.json"
+    if info.is_file():
+        stated = _read_json_opt(info).get("num_frames")
+        if isinstance(stated, int) and not isinstance(stated, bool):
+            expected = max(expected, stated)
+    missing = [i for i in range(expected) if i not in numbered]
+    if missing:
+        sample = files[0]
+        name = sample.parent / f"frame_{missing[0]:03d}{sample.suffix}"
+        raise SaftInputError(name, f"is missing: the result has {len(numbered)} of {expected} frames "
+                                   f"({len(missing)} missing); it is incomplete, run the reconstruction again")
+    return [numbered[i] for i in range(expected)]
 
 
 def list_render_files(result_dir: str | Path, material: bool = False) -> list[Path]:
@@ -130,9 +157,12 @@ def _read_json_opt(path: Path) -> dict:
     if not path.is_file():
         return {}
     try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise SaftInputError(path, f"not valid JSON ({exc})") from None
+    if not isinstance(data, dict):
+        raise SaftInputError(path, "expected a JSON object at the top level")
+    return data
 
 
 def read_result(result_dir: str | Path) -> Result:
@@ -148,10 +178,17 @@ def read_result(result_dir: str | Path) -> Result:
             raise SaftInputError(f, f"has another topology than {files[0].name}")
         verts.append(m.vertices)
     scene_info = _read_json_opt(folder / "scene.json")
+    if not (folder / "params.json").is_file():
+        raise SaftInputError(folder / "params.json", "missing: the result is incomplete (params.json is written "
+                                                     "with the meshes); run the reconstruction again")
     params = _read_json_opt(folder / "params.json")
     camera = None
     if "camera" in scene_info:
-        camera = Camera.from_json(scene_info["camera"])
+        try:
+            camera = Camera.from_json(scene_info["camera"])
+        except (KeyError, TypeError, ValueError):
+            raise SaftInputError(folder / "scene.json", "'camera' is not a camera (K, world_to_camera, width, "
+                                                        "height)") from None
     texture = None
     if (folder / "texture.png").is_file():
         texture = read_image(folder / "texture.png")[:, :, :3]

@@ -68,12 +68,11 @@ def test_report_without_optional_parts(bare_result_dir, tmp_path):
 
 
 def test_report_minimal_result(bare_result_dir, tmp_path):
-    for name in ("log.csv", "params.json", "timings.json", "config.toml", "texture.png"):
+    for name in ("log.csv", "timings.json", "config.toml", "texture.png"):
         (bare_result_dir / name).unlink()
     shutil.rmtree(bare_result_dir / "renders")
     text = write_report(bare_result_dir).read_text()
-    for msg in ("no log.csv", "no params.json", "no timings.json", "no config.toml", "no renders/",
-                "no texture.png"):
+    for msg in ("no log.csv", "no timings.json", "no config.toml", "no renders/", "no texture.png"):
         assert msg in text
 
 

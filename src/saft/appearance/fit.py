@@ -119,6 +119,8 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
     OpenCV camera of the frames; target_rgb (F, H, W, 3) sRGB in [0, 1]; target_mask (F, H, W) in [0, 1].
     progress(epoch, epochs, loss) is called after each epoch; checkpoint(state) every
     config.checkpoint_every epochs and at the end, with a state dict that `resume_state=` continues from.
+    progress may raise (e.g. on Ctrl-C) to stop the fit: checkpoint(state) is called with the state after
+    that epoch before the exception goes on, so an interruption loses no finished epoch.
     """
     cfg = copy.deepcopy(config) if config is not None else AppearanceConfig()
     cfg.validate()
@@ -210,7 +212,12 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
         env.clamp_()
         losses.append(epoch_loss)
         if progress is not None:
-            progress(epoch + 1, cfg.epochs, epoch_loss)
+            try:
+                progress(epoch + 1, cfg.epochs, epoch_loss)
+            except BaseException:   # progress stops the fit (Ctrl-C): keep this epoch's state first
+                if checkpoint is not None:
+                    checkpoint(state(epoch + 1))
+                raise
         if checkpoint is not None and cfg.checkpoint_every > 0 and (epoch + 1) % cfg.checkpoint_every == 0 \
                 and epoch + 1 < cfg.epochs:
             checkpoint(state(epoch + 1))

@@ -16,7 +16,7 @@ from saft.evaluate.ground_truth import GroundTruthSpec, ground_truth_files, load
 from saft.evaluate.metrics import (CD1, CD2, DEPTH, METRIC_KEYS, NUM_POINTS, P2S_L1, P2S_L2, P2S_SYM_L1, P2S_SYM_L2,
                                    depth_error_cm, frame_metrics, frame_rng)
 from saft.io_utils import atomic_write_json
-from saft.result import write_depth_pair
+from saft.result import check_frame_numbers, write_depth_pair
 from saft.scene.camera import Camera
 from saft.scene.mesh import QuadMesh, read_obj
 
@@ -131,6 +131,8 @@ def evaluate_result_dir(result_dir: str | Path, gt_spec: GroundTruthSpec, seed: 
                         key=_natural_key)
     if not mesh_files:
         raise SaftInputError(mesh_dir, "no .obj meshes in the folder")
+    if all(p.stem.startswith("frame_") for p in mesh_files):   # saft's own naming: no frame may be missing
+        mesh_files = check_frame_numbers(mesh_files, result_dir)
     gt_files = ground_truth_files(gt_spec)
     if len(mesh_files) != len(gt_files):
         problem = (f"{len(mesh_files)} meshes but {len(gt_files)} ground-truth frames in {gt_spec.directory}")

@@ -21,7 +21,8 @@ NOVEL_VIEW_ANGLE = 45.0  # degrees around the vertical axis through the cloth (t
 def run_appearance_phase(ctx: PhaseContext, cfg: AppearanceConfig, positions: np.ndarray, triangles: np.ndarray,
                          uvs: np.ndarray, resume_state: dict | None) -> AppearanceResult:
     """Fit the appearance to ctx's targets on the frozen motion `positions` (F, V, 3) and save material/.
-    Checkpoints through ctx.checkpoint("appearance", state); Ctrl-C through ctx.check_interrupt."""
+    Checkpoints through ctx.checkpoint("appearance", state); Ctrl-C through ctx.epoch_done, whose
+    Interrupted leaves fit_appearance through its progress callback after it checkpointed that epoch."""
     log.info("appearance: profile %s, %d epochs, %s maps, image scale %g, %s frames per epoch",
              cfg.profile, cfg.epochs, cfg.maps, cfg.image_scale, cfg.frames_per_epoch or "all")
     start = int(resume_state["epoch"]) if resume_state else 0
@@ -35,7 +36,7 @@ def run_appearance_phase(ctx: PhaseContext, cfg: AppearanceConfig, positions: np
         ctx.log.add(phase="appearance", epoch=epoch, frames=cfg.frames_per_epoch or len(positions),
                     loss=float(loss), image=float(loss), seconds=now - last[0])
         last[0] = now
-        ctx.check_interrupt("appearance")
+        ctx.epoch_done("appearance", epochs_done)   # Ctrl-C: the fit checkpoints this epoch on the way out
 
     result = fit_appearance(positions, triangles, uvs, ctx.camera, ctx.target_rgb.cpu().numpy(),
                             ctx.target_mask.cpu().numpy(), config=cfg, device=ctx.device, progress=on_progress,

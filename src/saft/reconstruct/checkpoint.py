@@ -15,6 +15,7 @@ from typing import Iterator
 
 import torch
 
+from saft.errors import SaftInputError
 from saft.io_utils import atomic_path
 
 CHECKPOINT = Path("checkpoint") / "state.pt"
@@ -29,11 +30,32 @@ def save_checkpoint(out_dir: Path, state: dict) -> None:
         torch.save(state, tmp)
 
 
-def load_checkpoint(out_dir: Path) -> dict | None:
+# What a checkpoint must hold besides "version", "phase", "log", "timings" and "identity", by phase.
+PHASE_KEYS = {"texture": (), "shape": ("texture",), "outputs": ("texture", "shape_state", "positions"),
+              "appearance": ("texture", "shape_state", "positions"), "done": ("texture", "shape_state", "positions")}
+
+
+def load_checkpoint(out_dir: Path, version: int | None = None) -> dict | None:
+    """The saved state, None without a checkpoint; SaftInputError (naming the file) when it is truncated,
+    not a saft checkpoint, from another version (`version`: the one expected) or missing a part."""
     path = checkpoint_path(out_dir)
     if not path.is_file():
         return None
-    return torch.load(path, map_location="cpu", weights_only=False)
+    restart = "remove it or pass --overwrite to start again"
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:  # truncated zip, garbage, pickle errors: all mean "unusable"
+        raise SaftInputError(path, f"cannot read the checkpoint ({type(exc).__name__}; truncated or not a saft "
+                                   f"checkpoint); {restart}") from None
+    if not isinstance(state, dict) or state.get("phase") not in PHASE_KEYS:
+        raise SaftInputError(path, f"not a saft checkpoint; {restart}")
+    if version is not None and state.get("version") != version:
+        raise SaftInputError(path, f"checkpoint from another saft version ({state.get('version')!r}, this one "
+                                   f"writes {version}); {restart}")
+    missing = [k for k in ("log", "timings", "identity", *PHASE_KEYS[state["phase"]]) if k not in state]
+    if missing:
+        raise SaftInputError(path, f"the checkpoint lacks {', '.join(missing)} (damaged); {restart}")
+    return state
 
 
 class Interrupted(Exception):

@@ -16,6 +16,7 @@ from saft.config_io import from_dict, load_toml, merge_overrides, to_dict
 from saft.device import resolve_device
 from saft.physics import (DEFAULT_DAMPING, DEFAULT_DENSITY, DEFAULT_LOG10_B, DEFAULT_LOG10_S, DEFAULT_LOG10_Y,
                           DEFAULT_SUBSTEPS, LOG10_LIMITS)
+from saft.reconstruct.config_checks import check_config_ranges
 
 
 @dataclass
@@ -130,4 +131,5 @@ def load_saft_config(path: str | Path | None = None, overrides: list[str] | None
         user = {k: v for k, v in data.get("appearance", {}).items() if k != "profile"}
         cfg.appearance = from_dict(AppearanceConfig, {**to_dict(base), **user}, where, "appearance.")
     cfg.appearance.validate()
+    check_config_ranges(cfg, where)
     return cfg

@@ -60,11 +60,12 @@ class PhaseContext:
             raise Interrupted(f"interrupted in {where}; continue with --resume "
                               f"(checkpoint in {self.out_dir / 'checkpoint'})")
 
-    def epoch_done(self, phase: str, epochs_done: int, state_fn: Callable[[], dict]) -> None:
-        """After every epoch: the on_epoch hook, the checkpoint when due or interrupted, then check_interrupt."""
+    def epoch_done(self, phase: str, epochs_done: int, state_fn: Callable[[], dict] | None = None) -> None:
+        """After every epoch: the on_epoch hook, the checkpoint when due or interrupted, then check_interrupt.
+        Without state_fn the phase writes its own checkpoints (also when check_interrupt raises)."""
         if self.on_epoch is not None and self.on_epoch(phase, epochs_done):
             self.guard.requested = True
-        if self.guard.requested or self.clock.due():
+        if state_fn is not None and (self.guard.requested or self.clock.due()):
             self.checkpoint(phase, state_fn())
         self.check_interrupt(phase, epochs_done)
 

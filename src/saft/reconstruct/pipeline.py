@@ -23,20 +23,26 @@ from saft.device import cpu_threads, resolve_device
 from saft.errors import SaftInputError
 from saft.io_utils import atomic_write_json, atomic_write_text
 from saft.reconstruct.appearance_outputs import run_appearance_phase, write_appearance_renders
-from saft.reconstruct.checkpoint import CheckpointClock, InterruptGuard, Interrupted, load_checkpoint
+from saft.reconstruct.checkpoint import (CheckpointClock, InterruptGuard, Interrupted, checkpoint_path,
+                                         load_checkpoint)
 from saft.reconstruct.config import SaftConfig
+from saft.reconstruct.config_checks import check_config_ranges
 from saft.reconstruct.context import PhaseContext, to_device_targets
+from saft.reconstruct.estimate import log_estimate
+from saft.reconstruct.out_dir import check_out_dir, create_out_dir
 from saft.reconstruct.outputs import write_shape_outputs
 from saft.reconstruct.progress import EpochLog, Progress
+from saft.reconstruct.run_identity import check_same_run, run_identity
 from saft.reconstruct.shape_phase import (ShapeSimulator, initial_const_accel, new_shape_state, restore_shape_state,
                                           run_shape_phase)
 from saft.reconstruct.texture_phase import initial_texture, new_texture_state, restore_texture_state, run_texture_phase
 from saft.render import get_rasterizer
 from saft.scene import Scene
+from saft.scene.scene import MIN_IMAGE_SIDE
 
 log = logging.getLogger("saft")
 
-CHECKPOINT_VERSION = 1
+CHECKPOINT_VERSION = 2   # 2: the run's identity (scene + config) is stored for --resume
 
 
 @dataclass
@@ -119,15 +125,20 @@ def _next_phase(name: str, cfg: SaftConfig) -> str:
     return next((p.name for p in later if p.enabled(cfg)), "done")
 
 
-def reconstruct(scene: Scene, cfg: SaftConfig, out_dir: str | Path, *, resume: bool = False, quiet: bool = False,
+def reconstruct(scene: Scene, cfg: SaftConfig, out_dir: str | Path, *, resume: bool = False,
+                overwrite: bool = False, quiet: bool = False,
                 on_epoch: Callable[[str, int], None] | None = None) -> RunOutcome:
     """Run every enabled phase on `scene` and write the result folder `out_dir` (layout: saft.result).
 
-    `on_epoch(phase, epochs_done)` is called after every epoch; returning True acts like Ctrl-C. Ctrl-C
-    stops at the end of the current epoch after writing the checkpoint (KeyboardInterrupt is raised then),
-    and `resume=True` continues from it.
+    `on_epoch(phase, epochs_done)` is called after every epoch of every phase; returning True acts like
+    Ctrl-C. Ctrl-C stops at the end of the current epoch after writing the checkpoint (KeyboardInterrupt
+    is raised then), and `resume=True` continues from it (only with the same scene and result-determining
+    config). `out_dir` must be new, empty, or a saft result with `resume` or `overwrite`
+    (saft.reconstruct.out_dir); every input is checked before anything is written.
     """
     out_dir = Path(out_dir)
+    check_config_ranges(cfg)
+    check_out_dir(out_dir, scene, resume=resume, overwrite=overwrite)
     device = resolve_device(cfg.run.device)
     if cfg.appearance.profile == "auto":   # programmatic use; the CLI resolves it in load_saft_config
         cfg = replace(cfg, appearance=profile_for_device(device, replace(cfg.appearance, profile="paper")))
@@ -135,32 +146,46 @@ def reconstruct(scene: Scene, cfg: SaftConfig, out_dir: str | Path, *, resume: b
     torch.manual_seed(cfg.run.seed)
     np.random.seed(cfg.run.seed)
 
-    saved = load_checkpoint(out_dir) if resume else None
+    saved = load_checkpoint(out_dir, CHECKPOINT_VERSION) if resume else None
     if resume and saved is None:
         log.warning("no checkpoint in %s: starting from the beginning", out_dir)
-    if saved is not None and saved.get("version") != CHECKPOINT_VERSION:
-        raise SaftInputError(out_dir / "checkpoint", "checkpoint from another saft version; remove it to restart")
-    out_dir.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out_dir / "config.toml", to_toml(cfg))
 
     camera = scene.working_camera(cfg.render.scale)
+    if min(camera.width, camera.height) < MIN_IMAGE_SIDE:
+        raise SaftInputError("render.scale", f"= {cfg.render.scale:g} makes the working image {camera.width}x"
+                                             f"{camera.height} pixels; saft needs at least {MIN_IMAGE_SIDE} per side")
     frames = scene.working_frames(cfg.render.scale)
     t_load = time.perf_counter()
     rgb, mask = frames.load()
+    identity = run_identity(scene, cfg, rgb, mask)
+    if saved is not None:
+        check_same_run(saved["identity"], identity, checkpoint_path(out_dir))
+    template = torch.as_tensor(scene.template.vertices, dtype=torch.float64, device=device)
+    phase_now = saved["phase"] if saved else "texture"
+    sim = None
+    if phase_now in ("texture", "shape"):
+        try:   # the template is checked by the physics before any phase runs (and the estimate uses it)
+            sim = ShapeSimulator(template, scene.template.quads, cfg.physics, scene.frame_dt, scene.pinned)
+        except ValueError as exc:
+            raise SaftInputError(scene.source, f"the template cannot be simulated: {exc}") from None
+    create_out_dir(out_dir, overwrite=overwrite)
+    atomic_write_text(out_dir / "config.toml", to_toml(cfg))
     target_rgb, target_mask = to_device_targets(rgb, mask, device)
     timings: dict = dict(saved["timings"]) if saved else {}
     timings["load_frames"] = timings.get("load_frames", 0.0) + time.perf_counter() - t_load
     ctx = PhaseContext(
         device=device, camera=camera,
-        template_positions=torch.as_tensor(scene.template.vertices, dtype=torch.float64, device=device),
+        template_positions=template,
         triangles=torch.as_tensor(scene.template.triangles, dtype=torch.int32, device=device),
         uvs=torch.as_tensor(scene.template.uvs, dtype=torch.float32, device=device),
         target_rgb=target_rgb, target_mask=target_mask,
         rasterizer=get_rasterizer(cfg.render.backend, device), progress=Progress(quiet=quiet),
         log=EpochLog(saved["log"] if saved else None), out_dir=out_dir,
-        state=saved or {"version": CHECKPOINT_VERSION, "phase": "texture"}, timings=timings,
+        state=saved or {"version": CHECKPOINT_VERSION, "phase": "texture", "identity": identity}, timings=timings,
         guard=InterruptGuard(), clock=CheckpointClock(cfg.run.checkpoint_seconds), on_epoch=on_epoch,
     )
+    if sim is not None:
+        log_estimate(ctx, sim, cfg, scene.num_frames, scene.gravity_or_default())
     state = ctx.state
     for phase in PHASES:
         if state["phase"] != phase.name:

@@ -62,6 +62,10 @@ class Camera:
             raise SaftInputError(source, "camera contains NaN or inf")
         if self.K[0, 0] <= 0 or self.K[1, 1] <= 0:
             raise SaftInputError(source, "focal lengths must be positive")
+        if abs(self.cx - 0.5 * self.width) > self.width or abs(self.cy - 0.5 * self.height) > self.height:
+            raise SaftInputError(
+                source, f"principal point (cx, cy) = ({self.cx:g}, {self.cy:g}) lies far outside the "
+                f"{self.width}x{self.height} image; cx, cy are pixel coordinates (column, row), usually near the centre")
         R = self.world_to_camera[:3, :3]
         if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or abs(np.linalg.det(R) - 1.0) > 1e-4:
             raise SaftInputError(source, "world_to_camera is not a rigid transform (its 3x3 part is not a rotation)")

@@ -77,15 +77,20 @@ class FrameSequence:
             mask_path = self.mask_paths[index]
             m = read_image(mask_path)
             self._check_size(mask_path, m)
-            mask = (m[:, :, 0] > 0.5).astype(np.float32)
+            mask = mask_from_image(m)
+            what = mask_path, "the mask is empty (no non-zero pixel)"
         else:
             if not self._warned:
                 self._warned.append(True)
                 log.warning("no masks given: deriving them from the non-black pixels of the frames")
             mask = (rgb.max(axis=2) > DERIVED_MASK_THRESHOLD).astype(np.float32)
+            what = rgb_path, "the frame is black, so its mask (derived from non-black pixels) is empty"
         if self.crop is not None:
             rows, cols = self.crop.as_slices()
             rgb, mask = rgb[rows, cols], mask[rows, cols]
+        if not mask.any():
+            raise SaftInputError(what[0], f"frame {index}: {what[1]}{' inside the crop' if self.crop else ''}; "
+                                          "every frame needs the cloth in its mask")
         if self.scale != 1.0:
             h, w = self.size
             rgb = _resize(rgb, h, w)
@@ -107,6 +112,22 @@ class FrameSequence:
             raise SaftInputError(
                 path, f"image is {img.shape[1]}x{img.shape[0]} but the scene's frames are {self.width}x{self.height}"
             )
+
+
+def mask_from_image(img: np.ndarray) -> np.ndarray:
+    """(H, W) float32 {0, 1} foreground of a mask image (H, W, C) read by read_image.
+
+    Any non-zero value is foreground (so 0/1 masks, 0/255 masks and soft masks all work). An image with an
+    alpha channel whose colour channels are constant while its alpha varies is a mask stored in the alpha
+    channel, and is read from there.
+    """
+    channels = img.shape[2]
+    if channels in (2, 4):
+        colour, alpha = img[:, :, :-1], img[:, :, -1]
+        if colour.max() == colour.min() and alpha.max() != alpha.min():
+            return (alpha > 0).astype(np.float32)
+        img = colour
+    return (img.max(axis=2) > 0).astype(np.float32)
 
 
 def _resize(img: np.ndarray, height: int, width: int) -> np.ndarray:
@@ -133,8 +154,13 @@ def _natural_key(path: Path):
     return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", path.name)]
 
 
-def frame_sequence_from_folders(rgb_dir: Path, mask_dir: Path | None) -> FrameSequence:
-    """Build a FrameSequence, checking counts and that the first frame (and its mask) can be read."""
+def frame_sequence_from_folders(rgb_dir: Path, mask_dir: Path | None, size: tuple[int, int] | None = None,
+                                size_source: str | Path | None = None) -> FrameSequence:
+    """Build a FrameSequence, checking counts and that the first frame (and its mask) can be read.
+
+    size: (width, height) the frames must have (the camera's, named by `size_source`); without it the first
+    frame sets the size.
+    """
     rgb_paths = list_images(rgb_dir)
     mask_paths = None
     if mask_dir is not None:
@@ -143,17 +169,25 @@ def frame_sequence_from_folders(rgb_dir: Path, mask_dir: Path | None) -> FrameSe
             raise SaftInputError(mask_dir, f"has {len(mask_paths)} masks but {rgb_dir} has {len(rgb_paths)} frames")
     first = read_image(rgb_paths[0])
     height, width = first.shape[:2]
+    if size is not None and (width, height) != tuple(size):
+        raise SaftInputError(rgb_paths[0], f"image is {width}x{height} but {size_source or 'the camera'} says "
+                                           f"{size[0]}x{size[1]}")
     seq = FrameSequence(tuple(rgb_paths), tuple(mask_paths) if mask_paths else None, width, height)
-    if mask_paths:
-        m = read_image(mask_paths[0])
-        seq._check_size(mask_paths[0], m)
+    seq[0]   # the first mask: readable, of the frame's size, not empty
     return seq
 
 
-def check_all_frames(seq: FrameSequence) -> None:
-    """Read the header of every frame and mask to find size mismatches and unreadable files up front."""
+def check_all_frames(seq: FrameSequence, decode: bool = False) -> None:
+    """Read the header of every frame and mask to find size mismatches and unreadable files up front.
+
+    decode=True reads every frame and mask completely (finds truncated files and empty masks, slower).
+    """
     from PIL import Image
 
+    if decode:
+        for i in range(len(seq)):
+            seq[i]
+        return
     paths = list(seq.rgb_paths) + list(seq.mask_paths or ())
     for p in paths:
         try:
@@ -164,4 +198,4 @@ def check_all_frames(seq: FrameSequence) -> None:
             img = read_image(p)
             h, w = img.shape[:2]
         if (w, h) != (seq.width, seq.height):
-            raise SaftInputError(p, f"image is {w}x{h} but the first frame is {seq.width}x{seq.height}")
+            raise SaftInputError(p, f"image is {w}x{h} but the scene's frames are {seq.width}x{seq.height}")

@@ -83,6 +83,7 @@ def read_obj(path: str | Path) -> QuadMesh:
     texcoords: list[list[float]] = []
     faces_v: list[list[int]] = []
     faces_vt: list[list[int] | None] = []
+    face_lines: list[int] = []
     for lineno, line in enumerate(text.splitlines(), start=1):
         parts = line.split()
         if not parts:
@@ -90,9 +91,9 @@ def read_obj(path: str | Path) -> QuadMesh:
         tag = parts[0]
         try:
             if tag == "v":
-                positions.append([float(x) for x in parts[1:4]])
+                positions.append([float(x) for x in _fields(parts, 3)])
             elif tag == "vt":
-                texcoords.append([float(x) for x in parts[1:3]])
+                texcoords.append([float(x) for x in _fields(parts, 2)])
             elif tag == "f":
                 fv, fvt = [], []
                 for corner in parts[1:]:
@@ -102,6 +103,7 @@ def read_obj(path: str | Path) -> QuadMesh:
                         fvt.append(_obj_index(int(fields[1]), len(texcoords)))
                 faces_v.append(fv)
                 faces_vt.append(fvt if len(fvt) == len(fv) else None)
+                face_lines.append(lineno)
         except (ValueError, IndexError):
             raise SaftInputError(path, f"line {lineno} is not valid OBJ: {line.strip()!r}") from None
 
@@ -115,9 +117,13 @@ def read_obj(path: str | Path) -> QuadMesh:
             path, f"face {bad + 1} has {len(faces_v[bad])} corners; the template must be a pure quad mesh"
         )
     vertices = np.asarray(positions, dtype=np.float64)
+    if not np.isfinite(vertices).all():
+        raise SaftInputError(path, "vertex positions contain NaN or inf")
     quads = np.asarray(faces_v, dtype=np.int64)
     if quads.min() < 0 or quads.max() >= len(vertices):
-        raise SaftInputError(path, "a face refers to a vertex that does not exist")
+        bad = int(np.flatnonzero((quads < 0).any(axis=1) | (quads >= len(vertices)).any(axis=1))[0])
+        raise SaftInputError(path, f"face {bad + 1} (line {face_lines[bad]}) refers to a vertex that does not exist")
+    _check_quads(path, vertices, quads, face_lines)
     if not texcoords or any(f is None for f in faces_vt):
         raise SaftInputError(path, "the template has no texture coordinates (vt) on every face; UVs are required")
     quads_vt = np.asarray(faces_vt, dtype=np.int64)
@@ -137,9 +143,40 @@ def read_obj(path: str | Path) -> QuadMesh:
     unused = np.isnan(uvs[:, 0])
     if unused.any():
         raise SaftInputError(path, f"{int(unused.sum())} vertices belong to no face; remove them from the template")
-    if not np.isfinite(vertices).all():
-        raise SaftInputError(path, "vertex positions contain NaN or inf")
+    if not np.isfinite(uvs).all():
+        raise SaftInputError(path, "texture coordinates contain NaN or inf")
     return QuadMesh(vertices, quads, uvs)
+
+
+# A quad counts as degenerate when one of its two triangles has less than this fraction of the area of a
+# square with the template's median edge length (the physics divides by rest areas, the renderer by them).
+DEGENERATE_AREA_FRACTION = 1e-8
+
+
+def _fields(parts: list[str], count: int) -> list[str]:
+    """The first `count` values after the tag of an OBJ line; ValueError when fewer are given."""
+    if len(parts) < count + 1:
+        raise ValueError(f"expected {count} numbers")
+    return parts[1:count + 1]
+
+
+def _check_quads(path: Path, vertices: np.ndarray, quads: np.ndarray, face_lines: list[int]) -> None:
+    """Every quad has four different corners and a non-zero area in both of its triangles."""
+    s = np.sort(quads, axis=1)
+    repeated = (s[:, 1:] == s[:, :-1]).any(axis=1)
+    if repeated.any():
+        bad = int(np.flatnonzero(repeated)[0])
+        raise SaftInputError(path, f"face {bad + 1} (line {face_lines[bad]}) uses a vertex twice: "
+                                   "a degenerate quad; every face needs four different vertices")
+    v = vertices[quads]                                            # (Q, 4, 3)
+    tri1 = 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
+    tri2 = 0.5 * np.linalg.norm(np.cross(v[:, 2] - v[:, 0], v[:, 3] - v[:, 0]), axis=1)
+    edge = np.median(np.linalg.norm(v - np.roll(v, 1, axis=1), axis=2))
+    flat = np.minimum(tri1, tri2) <= DEGENERATE_AREA_FRACTION * max(edge, 1e-300) ** 2
+    if flat.any():
+        bad = int(np.flatnonzero(flat)[0])
+        raise SaftInputError(path, f"face {bad + 1} (line {face_lines[bad]}) has zero area "
+                                   f"({int(flat.sum())} such quads); the template needs proper quads")
 
 
 def _obj_index(index: int, count: int) -> int:

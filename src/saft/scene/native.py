@@ -49,6 +49,13 @@ def _number(path: Path, data: dict, key: str) -> float:
     return value
 
 
+def _whole(value) -> int:
+    """A JSON whole number (3 or 3.0); ValueError for anything else (fractions, inf, text, true)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value != int(value):
+        raise ValueError(f"not a whole number: {value!r}")
+    return int(value)
+
+
 def _matrix(path: Path, data: dict, key: str, shape: tuple[int, int]) -> np.ndarray:
     if key not in data:
         raise SaftInputError(path, f"missing key {key!r}")
@@ -69,7 +76,15 @@ def read_camera_json(path: Path) -> Camera:
     if "K" in data:
         K = _matrix(path, data, "K", (3, 3))
         fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-        if abs(K[0, 1]) > 1e-9 or not np.allclose(K[2], [0, 0, 1]) or abs(K[1, 0]) > 1e-9:
+        if not np.isfinite(K).all():
+            raise SaftInputError(path, "'K' contains NaN or inf")
+        if not np.any(K):
+            raise SaftInputError(path, "'K' is all zeros; give [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels")
+        if not np.allclose(K[2], [0, 0, 1]):
+            raise SaftInputError(path, f"the last row of 'K' must be [0, 0, 1], got {K[2].tolist()}")
+        if fx <= 0 or fy <= 0:
+            raise SaftInputError(path, f"'K' must have positive focal lengths K[0][0], K[1][1], got {fx:g}, {fy:g}")
+        if abs(K[0, 1]) > 1e-9 or abs(K[1, 0]) > 1e-9:
             raise SaftInputError(path, "K must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (no skew)")
     else:
         fx, fy, cx, cy = (_number(path, data, k) for k in ("fx", "fy", "cx", "cy"))
@@ -84,7 +99,8 @@ def read_native_scene(folder: str | Path) -> Scene:
     template = read_obj(folder / "template.obj")
     camera = read_camera_json(folder / "camera.json")
     mask_dir = folder / "mask"
-    frames = frame_sequence_from_folders(folder / "rgb", mask_dir if mask_dir.exists() else None)
+    frames = frame_sequence_from_folders(folder / "rgb", mask_dir if mask_dir.exists() else None,
+                                         (camera.width, camera.height), folder / "camera.json")
     check_all_frames(frames)
 
     texture = None
@@ -104,10 +120,13 @@ def read_native_scene(folder: str | Path) -> Scene:
         frame_dt = 1.0 / fps
     pinned = None
     if "pinned_vertices" in meta:
-        try:
-            pinned = np.asarray(meta["pinned_vertices"], dtype=np.int64).reshape(-1)
-        except (TypeError, ValueError):
-            raise SaftInputError(meta_path, "'pinned_vertices' must be a list of vertex indices") from None
+        raw = meta["pinned_vertices"]
+        if not isinstance(raw, list) or not all(isinstance(i, int) and not isinstance(i, bool) for i in raw):
+            raise SaftInputError(meta_path, f"'pinned_vertices' must be a list of whole vertex indices (0-based), "
+                                            f"got {json.dumps(raw)[:60]}")
+        pinned = np.asarray(raw, dtype=np.int64).reshape(-1) if all(abs(i) < 2 ** 62 for i in raw) else None
+        if pinned is None:
+            raise SaftInputError(meta_path, "a 'pinned_vertices' index is out of range")
         if pinned.size and (pinned.min() < 0 or pinned.max() >= template.num_vertices):
             bad = int(pinned.max() if pinned.max() >= template.num_vertices else pinned.min())
             raise SaftInputError(meta_path, f"pinned vertex index {bad} is out of range "
@@ -124,13 +143,13 @@ def read_native_scene(folder: str | Path) -> Scene:
     if "crop" in meta:
         c = meta["crop"]
         try:
-            crop = Crop(int(c["top"]), int(c["left"]), int(c["height"]), int(c["width"]))
+            crop = Crop(*(_whole(c[k]) for k in ("top", "left", "height", "width")))
         except (TypeError, KeyError, ValueError):
             raise SaftInputError(meta_path, "'crop' must be {\"top\", \"left\", \"height\", \"width\"} in pixels") from None
     gt_dir, gt_frame = None, "world"
     if "ground_truth" in meta:
         gt = meta["ground_truth"]
-        if not isinstance(gt, dict) or "dir" not in gt:
+        if not isinstance(gt, dict) or not isinstance(gt.get("dir"), str) or not gt["dir"] or "\0" in gt["dir"]:
             raise SaftInputError(meta_path, "'ground_truth' must be {\"dir\": ..., \"frame\": \"world\"|\"camera\"}")
         gt_dir = (folder / gt["dir"]).resolve()
         gt_frame = gt.get("frame", "world")
@@ -144,7 +163,7 @@ def read_native_scene(folder: str | Path) -> Scene:
         pinned=pinned, frame_dt=frame_dt, gravity=gravity, crop=crop, source=folder,
         ground_truth_dir=gt_dir, ground_truth_frame=gt_frame,
     )
-    scene.validate()
+    scene.validate(meta_path if meta_path.exists() else None)
     return scene
 
 

@@ -25,6 +25,7 @@ from saft.scene.mesh import read_obj
 from saft.scene.native import read_json
 from saft.scene.scene import DEFAULT_FRAME_DT, STANDARD_GRAVITY, Scene
 
+PATH_KEYS = ("mesh_file", "image_files", "mask_files", "texture_file", "ground_truth_dir")
 REQUIRED_KEYS = ("mesh_file", "image_files", "camera_positions", "camera_directions", "camera_ups",
                  "optical_centers", "focal_lengths", "image_size")
 
@@ -61,7 +62,16 @@ def camera_from_phi_sft(json_path: Path, data: dict) -> Camera:
     up = _first_row(json_path, data, "camera_ups", 3)
     f_row, f_col = _first_row(json_path, data, "focal_lengths", 2)
     c_row, c_col = _first_row(json_path, data, "optical_centers", 2)
-    height, width = (int(v) for v in _first_row(json_path, data, "image_size", 2))
+    size = _first_row(json_path, data, "image_size", 2)
+    if not (np.isfinite(size).all() and (size == np.round(size)).all() and (size > 0).all() and (size < 1e6).all()):
+        raise SaftInputError(json_path, f"'image_size' must be [height, width] in whole pixels, got {size.tolist()}")
+    height, width = (int(v) for v in size)
+    for name, vec in (("camera_positions", position), ("camera_directions", direction), ("camera_ups", up),
+                      ("focal_lengths", [f_row, f_col]), ("optical_centers", [c_row, c_col])):
+        if not np.isfinite(vec).all():
+            raise SaftInputError(json_path, f"{name!r} must hold finite numbers")
+    if np.linalg.norm(direction) < 1e-12:
+        raise SaftInputError(json_path, "'camera_directions' must not be zero")
     z = direction / np.linalg.norm(direction)
     x = np.cross(z, up)
     if np.linalg.norm(x) < 1e-9:
@@ -80,6 +90,8 @@ def crop_from_phi_sft(json_path: Path, data: dict, image_height: int) -> Crop | 
         return None
     r0, c0 = _first_row(json_path, data, "lower_left_corners", 2)
     r1, c1 = _first_row(json_path, data, "upper_right_corners", 2)
+    if not np.isfinite([r0, c0, r1, c1]).all() or max(abs(r0), abs(c0), abs(r1), abs(c1)) > 1e6:
+        raise SaftInputError(json_path, "crop corners must be finite pixel positions")
     return Crop(top=int(image_height - r1), left=int(c0), height=int(r1 - r0), width=int(c1 - c0))
 
 
@@ -89,6 +101,12 @@ def read_phi_sft_scene(json_path: str | Path, root: str | Path | None = None) ->
     missing = [k for k in REQUIRED_KEYS if k not in data]
     if missing:
         raise SaftInputError(json_path, f"missing key(s) {', '.join(missing)} of the SAFT/PG-SfT scene layout")
+    for key in PATH_KEYS:
+        if key in data and (not isinstance(data[key], str) or not data[key] or "\0" in data[key]):
+            raise SaftInputError(json_path, f"{key!r} must be a relative path (a non-empty string)")
+    n_images = data.get("n_images")
+    if n_images is not None and (not isinstance(n_images, int) or isinstance(n_images, bool) or n_images < 1):
+        raise SaftInputError(json_path, f"'n_images' must be a positive whole number, got {n_images!r}")
     code = _code_dir(json_path, data, Path(root) if root is not None else None)
 
     def resolve(key: str) -> Path:
@@ -98,7 +116,7 @@ def read_phi_sft_scene(json_path: str | Path, root: str | Path | None = None) ->
     camera = camera_from_phi_sft(json_path, data)
     rgb_paths = list_images(resolve("image_files"))
     mask_paths = list_images(resolve("mask_files")) if "mask_files" in data else None
-    n = int(data.get("n_images", len(rgb_paths)))
+    n = len(rgb_paths) if n_images is None else n_images
     if len(rgb_paths) < n:
         raise SaftInputError(resolve("image_files"), f"has {len(rgb_paths)} frames but the JSON says n_images={n}")
     rgb_paths = rgb_paths[:n]

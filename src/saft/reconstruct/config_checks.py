@@ -1,0 +1,81 @@
+"""Range checks of a SaftConfig: a value of the right type but outside what the method can use is rejected
+with one line naming the key (e.g. `--set render.scale=0`, a negative epoch count).
+
+The types are checked when the config is read (saft.config_io); these are the numeric bounds on top.
+"""
+
+from __future__ import annotations
+
+import math
+
+from saft.errors import SaftInputError
+
+INF = math.inf
+
+# key: (lowest, highest, lowest allowed itself). Keys missing from the config (renamed by another
+# version) are skipped; bounds are what the code can run with, not what gives good results.
+RANGES: dict[str, tuple[float, float, bool]] = {
+    "run.seed": (0, INF, True),
+    "run.threads": (0, 1024, True),
+    "run.checkpoint_seconds": (0, INF, True),
+    "render.scale": (0, 4, False),
+    "texture.epochs": (0, 1_000_000, True),
+    "texture.size": (4, 8192, True),
+    "texture.init_value": (0, 1, True),
+    "texture.lr": (0, INF, True),
+    "texture.lambda_smooth": (0, INF, True),
+    "physics.substeps": (1, 1000, True),
+    "physics.density": (0, INF, False),
+    "physics.damping": (0, 1, False),
+    "shape.initial_frames": (1, INF, True),
+    "shape.add_frame_every": (1, INF, True),
+    "shape.final_epochs": (0, 1_000_000, True),
+    "shape.lambda_image": (0, INF, True),
+    "shape.lambda_sil": (0, INF, True),
+    "shape.lambda_energy": (0, INF, True),
+    "shape.lambda_force": (0, INF, True),
+    "shape.lr_stiffness": (0, INF, True),
+    "shape.lr_const_accel": (0, INF, True),
+    "shape.lr_vertex_accel": (0, INF, True),
+    "shape.grad_clip": (0, INF, False),
+    "shape.autoclip_quantile": (0, 1, False),
+    "appearance.epochs": (1, 1_000_000, True),
+    "appearance.checkpoint_every": (0, INF, True),
+    "appearance.render_spp": (1, 1_000_000, True),
+    "appearance.texel_size": (4, 8192, True),
+}
+
+# log10 stiffness ranges (lo, hi) and the initial value each must lie in.
+STIFFNESS = ("Y", "B", "S")
+
+
+def _get(cfg, key: str):
+    node = cfg
+    for part in key.split("."):
+        if not hasattr(node, part):
+            return None
+        node = getattr(node, part)
+    return node
+
+
+def check_config_ranges(cfg, where: str = "config") -> None:
+    """Raise SaftInputError naming the first key whose value is out of its range."""
+    for key, (lo, hi, lo_inclusive) in RANGES.items():
+        value = _get(cfg, key)
+        if value is None:
+            continue
+        low_ok = value >= lo if lo_inclusive else value > lo
+        if not low_ok or value > hi:   # NaN fails low_ok
+            bracket = "[" if lo_inclusive else "("
+            raise SaftInputError(where, f"{key} must lie in {bracket}{lo:g}, {hi:g}], got {value!r}")
+    for name in STIFFNESS:
+        lo, hi = _get(cfg, f"physics.log10_{name}_range") or (None, None)
+        init = _get(cfg, f"physics.log10_{name}_init")
+        if lo is None or init is None:
+            continue
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+            raise SaftInputError(where, f"physics.log10_{name}_range must be [low, high] with low <= high, "
+                                        f"got [{lo!r}, {hi!r}]")
+        if not lo <= init <= hi:
+            raise SaftInputError(where, f"physics.log10_{name}_init = {init!r} lies outside "
+                                        f"physics.log10_{name}_range [{lo:g}, {hi:g}]")
