@@ -7,7 +7,11 @@
 - losses.py       image, silhouette, FD smoothness, R_F
 - optim.py        per-parameter Adam with clipping, non-finite skipping and AutoClip
 - checkpoint.py   resume state written between epochs; Ctrl-C ends at an epoch boundary
-- pipeline.py     reconstruct(scene, cfg, out_dir, resume=...) loops over the PHASES table
+- config_checks   numeric ranges of the config (one line naming the key)
+- out_dir.py      what --out may be; --overwrite clears an old result
+- run_identity    scene digests + result-determining config keys, checked by --resume
+- estimate.py     time and memory of the run, measured before the first epoch
+- pipeline.py     reconstruct(scene, cfg, out_dir, resume=..., overwrite=...) loops over the PHASES table
 - outputs.py      meshes, texture, params, forces, renders
 - appearance_outputs  phase 3 in a run (saft.appearance) and its material/ renders
 """
