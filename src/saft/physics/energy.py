@@ -82,6 +82,12 @@ def _outer(a, b):
     return a[:, None, :] * b[None, :, :]
 
 
+def _parts(S, P1, P2):
+    """Per-element vector pieces from edge-space ones: springs (i, j) = (-S, S), hinges (n1, v, n2) =
+    (-P1, P1 - P2, P2) (e = x_j - x_i, e1 = v - n1, e2 = n2 - v), aligned with topology.scatter_idx."""
+    return torch.cat([-S, S, -P1, P1 - P2, P2], dim=1)
+
+
 class ElementEval:
     """Closed-form element quantities at one configuration (x: (V, 3)), elements-last.
 
@@ -95,10 +101,13 @@ class ElementEval:
         self.t = t
         self.mode = mode
         self.Y = Y
-        xT = x.T
-        self.xT = xT
+        self.xT = x.T
+        # every element end in one gather: (3, 2E + 3H), springs (i, j) then hinges (n1, v, n2)
+        self.nE = t.edges.shape[0]
+        self.nH = t.hinges.shape[0]
+        xi, xj, xn1, xv, xn2 = self._ends(x)
         # --- springs
-        e = xT[:, t.edges[:, 1]] - xT[:, t.edges[:, 0]]
+        e = xj - xi
         ls = torch.sqrt(_dot(e, e)).clamp_min(_EPS_LEN)
         u = e / ls
         s = 1.0 - t.rest_len / ls
@@ -111,8 +120,6 @@ class ElementEval:
         self.ls, self.us, self.s, self.sp, self.dsp = ls, u, s, sp, dsp
         self.stretch = ls - t.rest_len
         # --- hinges
-        h = t.hinges
-        xn1, xv, xn2 = xT[:, h[:, 0]], xT[:, h[:, 1]], xT[:, h[:, 2]]
         e1 = xv - xn1
         e2 = xn2 - xv
         l1 = torch.sqrt(_dot(e1, e1)).clamp_min(_EPS_LEN)
@@ -136,26 +143,61 @@ class ElementEval:
         self.g1 = (u2 - q * u1) / l1
         self.g2 = (u1 - q * u2) / l2
 
+    def _ends(self, w):
+        """(spring i, spring j, hinge n1, hinge v, hinge n2) values of a (V, 3) field, each (3, n)."""
+        g = torch.index_select(w.reshape(-1), 0, self.t.gather_idx).view(3, -1)
+        E, H = self.nE, self.nH
+        return g[:, :E], g[:, E:2 * E], g[:, 2 * E:2 * E + H], g[:, 2 * E + H:2 * E + 2 * H], g[:, 2 * E + 2 * H:]
+
     # ------------------------------------------------------------------ energy gradient
     def grad_parts(self):
         """(3, 2E + 3H) per-element contributions to dE/dx, aligned with topology.scatter_idx."""
         Gs = (self.Y * self.stretch) * self.us
-        G1 = self.phi_q * self.g1
-        G2 = self.phi_q * self.g2
-        return torch.cat([-Gs, Gs, -G1, G1 - G2, G2], dim=1)
+        return _parts(Gs, self.phi_q * self.g1, self.phi_q * self.g2)
 
     def grad(self):
         """dE/dx as (3, V)."""
-        out = torch.zeros_like(self.xT)
-        return out.index_add_(1, self.t.scatter_idx, self.grad_parts())
+        return self.scatter(self.grad_parts())
 
     # ------------------------------------------------------------------ Hessian assembly
     def hessian_values(self):
         """K = d2E/dx2 data in the topology's CSR pattern (flat (nnz,) tensor)."""
+        if self.mode == "projected":
+            return torch.index_select(self.hessian_upper(), 0, self.t.up_of)
+        return self._hessian_values_blocks()
+
+    def system_values(self, hh, mass_diag):
+        """Data of A = M + hh K in the CSR pattern (mass_diag: (3V,), the diagonal of M)."""
+        t = self.t
+        if self.mode == "projected":
+            A = (hh * self.hessian_upper()).index_add_(0, t.diag_up_idx, mass_diag)
+            return torch.index_select(A, 0, t.up_of)
+        return (hh * self._hessian_values_blocks()).index_add_(0, t.diag_idx, mass_diag)
+
+    def _spring_K(self):
+        us = self.us
+        I3 = torch.eye(3, dtype=us.dtype, device=us.device)[:, :, None]
+        return self.Y * ((1.0 - self.sp) * _outer(us, us) + self.sp * I3)  # (3, 3, E)
+
+    def hessian_upper(self):
+        """Projected K in the upper-triangle storage (topology.up_of): each element contributes only the
+        unique entries of its symmetric Hessian (21 per spring, 45 per Gauss-Newton hinge), about half the
+        products and scattered values of the full blocks."""
+        t = self.t
+        Ks = self._spring_K().reshape(9, -1)
+        spring_vals = torch.index_select(torch.cat([Ks, -Ks]), 0, t.spring_up_rows)
+        G = torch.cat([-self.g1, self.g1 - self.g2, self.g2])  # (9, H): rows (n1, v, n2) x dims
+        ra, rb = t.hinge_up_rows[0], t.hinge_up_rows[1]
+        hinge_vals = torch.index_select(self.phi_qq * G, 0, ra) * torch.index_select(G, 0, rb)
+        out = torch.zeros(t.nnz_up, dtype=G.dtype, device=G.device)
+        out.index_add_(0, t.spring_up_idx, spring_vals.reshape(-1))
+        return out.index_add_(0, t.hinge_up_idx, hinge_vals.reshape(-1))
+
+    def _hessian_values_blocks(self):
         t = self.t
         us = self.us
         I3 = torch.eye(3, dtype=us.dtype, device=us.device)[:, :, None]
-        Ks = self.Y * ((1.0 - self.sp) * _outer(us, us) + self.sp * I3)
+        Ks = self._spring_K()
         spring_blocks = torch.stack([Ks, -Ks, -Ks, Ks])  # (4, 3, 3, E)
         g1, g2 = self.g1, self.g2
         a = self.phi_qq
@@ -193,13 +235,8 @@ class ElementEval:
 
     # ------------------------------------------------------------------ adjoint helpers
     def _to_e(self, wT):
-        t = self.t
-        ws = wT[:, t.edges[:, 1]] - wT[:, t.edges[:, 0]]
-        h = t.hinges
-        wv = wT[:, h[:, 1]]
-        w1 = wv - wT[:, h[:, 0]]
-        w2 = wT[:, h[:, 2]] - wv
-        return ws, w1, w2
+        wi, wj, wn1, wv, wn2 = self._ends(wT.T)
+        return wj - wi, wv - wn1, wn2 - wv
 
     def _hess_q(self, a1, a2):
         """(grad^2 q) applied to the e-space vector (a1, a2)."""
@@ -209,22 +246,40 @@ class ElementEval:
         """Per-element pieces of (d2E/dx2) lam with the TRUE Hessian (whatever the mode), aligned with
         topology.scatter_idx; the adjoint needs it for d/dx (lam . f(x))."""
         lams, lam1, lam2 = self._to_e(lamT)
-        us, s = self.us, self.s
-        Ks = self.Y * ((1.0 - s) * _dot(us, lams) * us + s * lams)
+        ul = _dot(self.us, lams)
         gl = _dot(self.g1, lam1) + _dot(self.g2, lam2)
-        h1, h2 = self._hess_q(lam1, lam2)
-        a = self.phi_qq_exact * gl
-        H1 = a * self.g1 + self.phi_q * h1
-        H2 = a * self.g2 + self.phi_q * h2
-        return torch.cat([-Ks, Ks, -H1, H1 - H2, H2], dim=1)
+        Ks, H1, H2 = self._exact_hvp(lams, ul, gl, *self._hess_q(lam1, lam2))
+        return _parts(Ks, H1, H2)
 
-    def adjoint_terms(self, lamT, wT, need_third: bool = True):
+    def _exact_hvp(self, lams, ul, gl, hl1, hl2):
+        """Edge-space pieces of the true-Hessian product from lam's edge vectors and contractions."""
+        us, s = self.us, self.s
+        Ks = self.Y * ((1.0 - s) * ul * us + s * lams)
+        a = self.phi_qq_exact * gl
+        return Ks, a * self.g1 + self.phi_q * hl1, a * self.g2 + self.phi_q * hl2
+
+    def adjoint_increment(self, lamT, wT, h):
+        """Everything one implicit step's adjoint needs from the elements, sharing the work of
+        ``exact_hvp_parts`` and ``adjoint_terms``: (parts, gY, hinge_c) where parts (3, 2E + 3H) are the
+        per-element pieces of -h (d2E/dx2) lam - h^2 d/dx (lam^T K(x) w) (true Hessian in the first term),
+        gY = -h lam . dE_Y/dx - h^2 lam^T K_Y w (summed) and hinge_c the same per hinge (bend and shear)."""
+        adj = self.adjoint_terms(lamT, wT, hvp=True)
+        Ks, H1, H2 = adj["hvp"]
+        Ts, T1, T2 = adj["third"]
+        hh = h * h
+        parts = _parts(-h * Ks - hh * Ts, -h * H1 - hh * T1, -h * H2 - hh * T2)
+        gY = -h * adj["spring_lg"].sum() - hh * adj["spring_lKw"].sum()
+        return parts, gY, -h * adj["hinge_lg"] - hh * adj["hinge_lKw"]
+
+    def adjoint_terms(self, lamT, wT, need_third: bool = True, hvp: bool = False):
         """For the adjoint of one implicit step.
 
         Returns (third (3, V), c_Y, c_B, c_S, lamK_parts) where
           third = d/dx (lam^T K(x) w) (the third-derivative contraction), and
           c_k = dk-weighted pieces: c_Y = lam . dE_Y/dx (with Y), kY = lam^T K_Y w (with Y), etc.
         Only the "projected" mode is closed form here; "exact" falls back to autograd for the hinges.
+        With ``hvp`` the dict also holds the edge-space pieces of ``exact_hvp_parts`` ("hvp") and of the
+        third-derivative contraction ("third"), each (springs, hinge e1, hinge e2), instead of "third_parts".
         """
         ls_, us, sp, dsp = self.ls, self.us, self.sp, self.dsp
         lams, lam1, lam2 = self._to_e(lamT)
@@ -243,29 +298,29 @@ class ElementEval:
         gw = _dot(g1, w1) + _dot(g2, w2)
         hinge_lg = self.phi_q * gl
         hinge_lKw = self.phi_qq * gl * gw
-        if self.mode == "exact":
-            h1, h2 = self._hess_q(w1, w2)
-            hinge_lKw = hinge_lKw + self.phi_q * (_dot(lam1, h1) + _dot(lam2, h2))
+        projected = self.mode == "projected"
+        hl = self._hess_q(lam1, lam2) if hvp or (need_third and projected) else None
+        hw = self._hess_q(w1, w2) if not projected or need_third else None
+        if not projected:
+            hinge_lKw = hinge_lKw + self.phi_q * (_dot(lam1, hw[0]) + _dot(lam2, hw[1]))
         T1 = T2 = None
-        if need_third:
-            if self.mode == "projected":
+        if need_third or hvp:
+            if projected:
                 kh, q = self.kh, self.q
                 dtau = 2.0 * _C**4 * q / (self.s2 * self.s2)
-                hl1, hl2 = self._hess_q(lam1, lam2)
-                hw1, hw2 = self._hess_q(w1, w2)
                 a = kh * dtau * gl * gw
                 b = kh * self.tau
-                T1 = a * g1 + b * (gw * hl1 + gl * hw1)
-                T2 = a * g2 + b * (gw * hl2 + gl * hw2)
+                T1 = a * g1 + b * (gw * hl[0] + gl * hw[0])
+                T2 = a * g2 + b * (gw * hl[1] + gl * hw[1])
             else:
                 T1, T2 = self._third_exact_hinge(lam1, lam2, w1, w2)
-        return dict(
-            spring_lKw=spring_lKw,
-            spring_lg=spring_lg,
-            hinge_lKw=hinge_lKw,
-            hinge_lg=hinge_lg,
-            third_parts=None if T1 is None else torch.cat([-Ts, Ts, -T1, T1 - T2, T2], dim=1),
-        )
+        out = dict(spring_lKw=spring_lKw, spring_lg=spring_lg, hinge_lKw=hinge_lKw, hinge_lg=hinge_lg)
+        if hvp:
+            out["hvp"] = self._exact_hvp(lams, ul, gl, *hl)
+            out["third"] = (Ts, T1, T2)
+        else:
+            out["third_parts"] = None if T1 is None else _parts(Ts, T1, T2)
+        return out
 
     def _third_exact_hinge(self, lam1, lam2, w1, w2):
         """d/de (lam^T K_hinge(e) w) for the exact hinge Hessian, by autograd on the closed form."""
@@ -298,5 +353,6 @@ class ElementEval:
         return T1, T2
 
     def scatter(self, parts):
+        """Sum per-element (3, 2E + 3H) pieces onto their vertices: (3, V)."""
         out = torch.zeros_like(self.xT)
         return out.index_add_(1, self.t.scatter_idx, parts)

@@ -21,6 +21,7 @@ import warnings
 import torch
 
 from saft.physics.energy import ElementEval
+from saft.physics.topology import _FAST_MAP_FIELDS
 
 ENV_COMPILE = "SAFT_PHYSICS_COMPILE"
 
@@ -29,10 +30,10 @@ class _Geo:
     """The tensors of a ClothTopology that ElementEval reads (a plain object dynamo can trace)."""
 
     __slots__ = ("edges", "rest_len", "hinges", "rest_angle", "bend_w", "scatter_idx", "spring_idx",
-                 "hinge_idx", "hinge_idx_outer", "nnz")
+                 "hinge_idx", "hinge_idx_outer", *_FAST_MAP_FIELDS, "nnz", "nnz_up")
 
 
-_GEO_FIELDS = _Geo.__slots__[:-1]
+_GEO_FIELDS = _Geo.__slots__[:-2]
 
 
 def _geo(nnz, tensors):
@@ -40,24 +41,20 @@ def _geo(nnz, tensors):
     for name, val in zip(_GEO_FIELDS, tensors):
         setattr(g, name, val)
     g.nnz = nnz
+    g.nnz_up = (nnz + g.diag_up_idx.shape[0]) // 2  # as ClothTopology.nnz_up
     return g
 
 
 def _step_forward(mode, nnz, x, Y, B, S, hh, mass_diag, diag_idx, *geo):
     ev = ElementEval(_geo(nnz, geo), x, Y, B, S, mode)
-    A = (hh * ev.hessian_values()).index_add(0, diag_idx, mass_diag)
-    return ev.grad().T, A
+    return ev.grad().T, ev.system_values(hh, mass_diag)
 
 
 def _step_adjoint(mode, nnz, x, lam, v1, Y, B, S, h, *geo):
     ev = ElementEval(_geo(nnz, geo), x, Y, B, S, mode)
-    lamT = lam.T
-    adj = ev.adjoint_terms(lamT, v1.T)
-    gparts = (-h) * ev.exact_hvp_parts(lamT) - (h * h) * adj["third_parts"]
+    parts, gY, hc = ev.adjoint_increment(lam.T, v1.T, h)
     bw = ev.t.bend_w
-    hc = -h * adj["hinge_lg"] - h * h * adj["hinge_lKw"]
-    gY = -h * adj["spring_lg"].sum() - h * h * adj["spring_lKw"].sum()
-    return ev.scatter(gparts).T, gY, (hc * bw).sum(), (hc * (1.0 - bw)).sum()
+    return ev.scatter(parts).T, gY, (hc * bw).sum(), (hc * (1.0 - bw)).sum()
 
 
 _compiled: dict = {}

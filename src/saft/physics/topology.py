@@ -35,6 +35,15 @@ class ClothTopology:
       spring_idx (4*9*E,), hinge_idx (9*9*H,), diag_idx (3V,): positions in the CSR data array of every
       element-Hessian entry, in the elements-last order the kernels produce (block, row, col, element).
       scatter_idx (2E + 3H,): vertex of every per-element vector entry (springs i, j; hinges n1, v, n2).
+    Derived (computed on construction) for the fast kernels:
+      gather_idx (3 * (2E + 3H),): flat index 3 * vertex + dim of every per-element vector entry, dim-major,
+        so one 1-D gather of a (V, 3) field gives all element ends as (3, 2E + 3H).
+      up_of (nnz,): for every CSR entry (r, c) the position of (min(r, c), max(r, c)) in the upper-triangle
+        ("up") storage of the symmetric matrix (nnz_up entries, CSR order); full = up[up_of].
+      spring_up_idx (21 E,), hinge_up_idx (45 H,): up positions of the unique (upper) entries of each
+        spring's 6x6 and each hinge's 9x9 element Hessian, pair-major; spring_up_rows (21,) picks them from
+        a spring's (Ks, -Ks) 18 rows, hinge_up_rows (2, 45) from a hinge's 9-vector G (rows a, b of G G^T);
+        diag_up_idx (3V,): up positions of the diagonal.
     """
 
     num_vertices: int
@@ -53,6 +62,13 @@ class ClothTopology:
     scatter_idx: torch.Tensor = field(repr=False)
     template: torch.Tensor = field(repr=False)
     hinge_idx_outer: torch.Tensor = field(repr=False, default=None)
+    gather_idx: torch.Tensor = field(repr=False, default=None)
+    up_of: torch.Tensor = field(repr=False, default=None)
+    spring_up_idx: torch.Tensor = field(repr=False, default=None)
+    hinge_up_idx: torch.Tensor = field(repr=False, default=None)
+    diag_up_idx: torch.Tensor = field(repr=False, default=None)
+    spring_up_rows: torch.Tensor = field(repr=False, default=None)
+    hinge_up_rows: torch.Tensor = field(repr=False, default=None)
 
     def __post_init__(self):
         if self.hinge_idx_outer is None:
@@ -60,6 +76,14 @@ class ClothTopology:
             H = self.hinge_idx.numel() // 81
             perm = self.hinge_idx.view(3, 3, 3, 3, H).permute(0, 2, 1, 3, 4).reshape(-1)
             object.__setattr__(self, "hinge_idx_outer", perm)
+        if self.up_of is None:
+            for name, val in _fast_maps(self).items():
+                object.__setattr__(self, name, val)
+
+    @property
+    def nnz_up(self) -> int:
+        """Entries of the upper triangle (diagonal included) of the system matrix pattern."""
+        return (self.nnz + 3 * self.num_vertices) // 2
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -148,7 +172,7 @@ class ClothTopology:
         """A copy with every tensor on ``device`` and floating tensors in ``dtype``."""
         changes = {}
         for name in ("edges", "hinges", "is_bend", "spring_idx", "hinge_idx", "diag_idx", "scatter_idx",
-                     "hinge_idx_outer"):
+                     "hinge_idx_outer", *_FAST_MAP_FIELDS):
             changes[name] = getattr(self, name).to(device=device)
         for name in ("rest_len", "rest_angle", "bend_w", "mass", "template"):
             changes[name] = getattr(self, name).to(device=device, dtype=dtype)
@@ -179,6 +203,42 @@ def _as_numpy(a) -> np.ndarray:
     if isinstance(a, torch.Tensor):
         return a.detach().cpu().numpy()
     return np.asarray(a)
+
+
+_FAST_MAP_FIELDS = ("gather_idx", "up_of", "spring_up_idx", "hinge_up_idx", "diag_up_idx", "spring_up_rows",
+                    "hinge_up_rows")
+
+
+def _fast_maps(t: ClothTopology) -> dict:
+    """The derived index tensors of the fast kernels (see the ClothTopology docstring)."""
+    dev = t.spring_idx.device
+    indptr, indices = t.csr_indptr, t.csr_indices
+    n = len(indptr) - 1
+    rows = np.repeat(np.arange(n), np.diff(indptr))
+    upper = rows <= indices
+    rank = np.cumsum(upper) - 1
+    key = rows * n + indices  # ascending: rows sorted, columns sorted within a row
+    tpos = np.searchsorted(key, indices * n + rows)
+    up_of = np.where(upper, rank, rank[tpos])
+    E = t.spring_idx.numel() // 36
+    H = t.hinge_idx.numel() // 81
+    # spring: local dof a = 3 r + d over its ends r in (i, j); block (r, c) is +Ks on the diagonal, -Ks off it
+    sa, sb = np.triu_indices(6)
+    spring_pos = t.spring_idx.cpu().numpy().reshape(4, 3, 3, E)[2 * (sa // 3) + sb // 3, sa % 3, sb % 3]
+    spring_rows = np.where(sa // 3 == sb // 3, 0, 9) + 3 * (sa % 3) + sb % 3
+    ha, hb = np.triu_indices(9)
+    hinge_pos = t.hinge_idx_outer.cpu().numpy().reshape(9, 9, H)[ha, hb]
+    si = t.scatter_idx.cpu().numpy()
+    i = dict(device=dev, dtype=torch.int64)
+    return dict(
+        gather_idx=torch.as_tensor((3 * si[None, :] + np.arange(3)[:, None]).reshape(-1), **i),
+        up_of=torch.as_tensor(up_of, **i),
+        spring_up_idx=torch.as_tensor(up_of[spring_pos].reshape(-1), **i),
+        hinge_up_idx=torch.as_tensor(up_of[hinge_pos].reshape(-1), **i),
+        diag_up_idx=torch.as_tensor(up_of[t.diag_idx.cpu().numpy()], **i),
+        spring_up_rows=torch.as_tensor(spring_rows, **i),
+        hinge_up_rows=torch.as_tensor(np.stack([ha, hb]), **i),
+    )
 
 
 def _csr_pattern(V: int, edges: np.ndarray, hinges: np.ndarray):
