@@ -206,8 +206,8 @@ def test_torch_cg_solver_matches_lu_solver():
 
 @pytest.mark.parametrize("mode", ["projected", "exact"])
 def test_cholmod_solver_matches_lu_solver(mode):
-    """The CHOLMOD-preconditioned path (solver="auto" on CPU when scikit-sparse is importable) gives the
-    same rollout and gradients as the SuperLU one (tol 1e-12: positions to 1e-10, gradients to rtol 1e-6)."""
+    """The opt-in CHOLMOD-preconditioned path gives the same rollout and gradients as the SuperLU one
+    (tol 1e-12: positions to 1e-10, gradients to rtol 1e-6)."""
     from saft.physics import solver as S
 
     t, x0, v0, p, W = _setup()
@@ -224,6 +224,90 @@ def test_cholmod_solver_matches_lu_solver(mode):
     assert torch.allclose(res["lu"][0], res["cholmod"][0], atol=1e-10)
     for a, b in zip(res["lu"][1], res["cholmod"][1]):
         assert torch.allclose(a, b, rtol=1e-6, atol=1e-8 * b.abs().max().item())
+
+
+def _rollout_and_grads(t, x0, v0, p, W, **kw):
+    pp = PhysicsParams(*(x.detach().clone().requires_grad_(True) for x in p.tensors()))
+    pos = rollout(t, x0, v0, pp, num_frames=N, **kw)
+    (pos * W).sum().backward()
+    return [pos.detach()] + [x.grad for x in pp.tensors()]
+
+
+def test_default_solver_is_deterministic_and_ignores_optional_packages(monkeypatch):
+    """The default CPU path gives the same bits on every run, with 1 or 2 torch threads, and whether or not
+    CHOLMOD is importable ("auto" never picks a different numerical method from what is installed)."""
+    from saft.physics import solver as S
+
+    t, x0, v0, p, W = _setup(n=6)
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        ref = _rollout_and_grads(t, x0, v0, p, W)
+        torch.set_num_threads(2)
+        runs = [_rollout_and_grads(t, x0, v0, p, W), _rollout_and_grads(t, x0, v0, p, W, solver="lu")]
+        monkeypatch.setattr(S, "HAVE_CHOLMOD", True)  # as if scikit-sparse were installed
+        runs.append(_rollout_and_grads(t, x0, v0, p, W, solver="auto"))
+    finally:
+        torch.set_num_threads(threads)
+    for run in runs:
+        for a, b in zip(ref, run):
+            assert torch.equal(a, b)
+
+
+def _system(mode, compress=1.0, drift=0.0):
+    """A system matrix A = M + h^2 K of a 12x12 grid (CSR data; ``drift``: metres of random motion added
+    to the same perturbed state, as between substeps), its pattern and a right-hand side."""
+    import scipy.sparse as sp
+
+    v, q = grid_mesh(12, wave=0.02)
+    t = ClothTopology.from_quads(v, q)
+    g = torch.Generator().manual_seed(0)
+    x = compress * t.template + 0.002 * torch.randn(t.template.shape, generator=g, dtype=torch.float64)
+    x = x + drift * torch.randn(t.template.shape, generator=g, dtype=torch.float64)
+    A = ElementEval(t, x, 200.0, 1e-3, 1e-4, mode).system_values(0.005**2, t.mass.repeat_interleave(3)).numpy()
+    n = 3 * t.num_vertices
+    b = np.random.default_rng(0).standard_normal(n)
+    return t, A, b, sp.csr_matrix((A, t.csr_indices, t.csr_indptr), shape=(n, n))
+
+
+@pytest.mark.parametrize("drop_tol", [1e-4, 0.0])
+def test_reused_factor_solver_matches_direct_solve(drop_tol):
+    """CG preconditioned by the (incomplete, default) or complete LU of a drifted matrix reaches the direct
+    solution; the incomplete factor has fewer entries than the complete one."""
+    import scipy.sparse.linalg as spla
+
+    from saft.physics.solver import ReusedLUSolver
+
+    t, A0, _, _ = _system("projected")
+    _, A, b, Am = _system("projected", drift=2e-4)
+    s = ReusedLUSolver(t.csr_indptr, t.csr_indices, tol=1e-12, drop_tol=drop_tol)
+    s.factorize(A0)
+    assert s.incomplete == (drop_tol > 0)
+    x = s.solve(A, b)
+    ref = spla.spsolve(Am.tocsc(), b)
+    assert np.abs(x - ref).max() <= 1e-9 * np.abs(ref).max()
+    assert s.stats.fallbacks == 0 and 0 < s.stats.iterations <= s.max_iter
+    if drop_tol:
+        full = ReusedLUSolver(t.csr_indptr, t.csr_indices, drop_tol=0.0)
+        full.factorize(A0)
+        assert s.lu.nnz < full.lu.nnz
+
+
+def test_reused_factor_solver_indefinite_matrix_falls_back_to_pivoted_lu():
+    """The exact Hessian under compression makes A indefinite: CG breaks down, the solver falls back to a
+    complete factorisation and a direct solve, still to the requested tolerance."""
+    import scipy.sparse.linalg as spla
+
+    from saft.physics.solver import ReusedLUSolver
+
+    t, A, b, Am = _system("exact", compress=0.97)
+    assert np.linalg.eigvalsh(Am.toarray()).min() < 0
+    s = ReusedLUSolver(t.csr_indptr, t.csr_indices, tol=1e-10)
+    x = s.solve(A, b)
+    assert np.linalg.norm(Am @ x - b) <= 1e-10 * np.linalg.norm(b)
+    ref = spla.spsolve(Am.tocsc(), b)
+    assert np.abs(x - ref).max() <= 1e-6 * np.abs(ref).max()
+    assert not s.incomplete
 
 
 def test_float32_inputs_and_defaults():

@@ -30,7 +30,7 @@ class _Geo:
     """The tensors of a ClothTopology that ElementEval reads (a plain object dynamo can trace)."""
 
     __slots__ = ("edges", "rest_len", "hinges", "rest_angle", "bend_w", "scatter_idx", "spring_idx",
-                 "hinge_idx", "hinge_idx_outer", *_FAST_MAP_FIELDS, "nnz", "nnz_up")
+                 "hinge_idx", "diag_idx", "hinge_idx_outer", *_FAST_MAP_FIELDS, "nnz", "nnz_up")
 
 
 _GEO_FIELDS = _Geo.__slots__[:-2]

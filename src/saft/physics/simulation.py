@@ -78,18 +78,11 @@ class PhysicsParams:
         return (self.log10_Y, self.log10_B, self.log10_S, self.damping, self.a_const, self.a_vert)
 
 
-CHOLMOD_AUTO_MAX_UNKNOWNS = 5000
-
-
 def _solver_for(topology: ClothTopology, solver: str, tol: float, stats: SolveStats):
     if solver == "auto":
-        if topology.device.type != "cpu":
-            solver = "cg"
-        else:
-            # CHOLMOD measured faster up to 32×32 grids (3.98 vs 5.36 s CPU fwd+bwd, R1); at 64×64 its
-            # refactorisation heuristics were not tuned (89 refactorisations, ~29 CG iterations per adjoint).
-            small = 3 * topology.num_vertices <= CHOLMOD_AUTO_MAX_UNKNOWNS
-            solver = "cholmod" if _solver_mod.HAVE_CHOLMOD and small else "lu"
+        # never depends on what is importable: CHOLMOD (opt-in) gives different numbers within the tolerance,
+        # and reconstructions are sensitive to that noise
+        solver = "cg" if topology.device.type != "cpu" else "lu"
     if solver == "cholmod":
         if not _solver_mod.HAVE_CHOLMOD:
             raise ValueError("solver='cholmod' needs scikit-sparse (sksparse.cholmod), which is not importable")
@@ -360,8 +353,9 @@ def rollout(
     pinned: vertex indices held exactly; at x0 (pinned_positions None) or at ``pinned_positions``
     (num_frames, P, 3), linearly interpolated within a frame's substeps (targets get no gradient).
     hessian: "projected" (PSD element Hessians, default) or "exact" (true Hessian, may be indefinite).
-    solver: "auto" (on CPU reused-factor PCG: "cholmod" if scikit-sparse is importable, else "lu"; Jacobi
-    PCG on other devices), "lu" (SuperLU), "cholmod" (CHOLMOD Cholesky, SPD; non-SPD falls back to LU) or "cg".
+    solver: "auto" ("lu" on CPU, whatever is installed; Jacobi PCG on other devices), "lu" (CG preconditioned
+    by a reused incomplete LU, SuperLU), "cholmod" (opt-in: CG preconditioned by a CHOLMOD Cholesky factor,
+    needs scikit-sparse; non-SPD falls back to LU) or "cg".
     tol: relative residual of every linear solve. stats: if a dict, receives solver counters (forward;
     the backward's are added as bwd_* when it runs).
     compile: torch.compile the per-substep element kernels (None: the SAFT_PHYSICS_COMPILE environment

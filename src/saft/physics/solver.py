@@ -1,11 +1,20 @@
 """Linear solvers for the implicit step A v = b, A = M + h^2 K (symmetric, 3V x 3V, fixed CSR pattern).
 
-CPU (``ReusedLUSolver``): a sparse LU (SuperLU via scipy, minimum-degree ordering on A + A^T) of some
+CPU (``ReusedLUSolver``, the default on CPU whatever else is installed): an incomplete sparse LU (SuperLU's
+ILU via scipy, symmetric mode, minimum-degree ordering on A + A^T, drop tolerance 1e-4, float32) of some
 recent A is kept and used as the preconditioner of conjugate gradients for the following solves. The
-matrix drifts slowly from substep to substep, so CG converges in a few iterations; when it does not
-(``max_iter`` reached, residual stagnating, or a breakdown because A is indefinite) the current A is
-factorised and solved directly (LU handles indefinite matrices). The adjoint solve of the backward pass
-uses the same machinery, starting from the forward pass's last factorisation.
+matrix drifts slowly from substep to substep, so CG converges in about ten iterations; once it needs more
+than ``refactor_after`` the next factorisation is of the current A. When CG fails (``max_iter`` reached,
+or a breakdown because A is indefinite) the current A is factorised afresh, then completely (SuperLU) and
+solved directly (LU handles indefinite matrices). The adjoint solve of the backward pass uses the same
+machinery with the factors kept from the forward pass.
+
+Why incomplete: on R1 (3072 unknowns) the ILU has 40 % of the complete factor's entries (242k vs 617k), so
+a preconditioner application costs about half, while CG needs about as many iterations with either: the
+iteration count is set by how far A has drifted since the factorisation, and saturates at ~11 either way.
+Measured on benchmarks/bench_physics.py: see BENCHMARKS.md, "Physics rollout speed (issue 12)".
+Everything here is single-threaded and deterministic: the same inputs give the same bits whatever the
+torch thread count, and no decision depends on a timing or on which optional package is importable.
 
 Any device (``JacobiCGSolver``): Jacobi-preconditioned CG in torch on a sparse CSR tensor (the CUDA
 path); on breakdown or non-convergence it falls back to a dense solve (correct for indefinite A).
@@ -45,8 +54,8 @@ class ReusedLUSolver:
     """CPU: CG preconditioned by a reused sparse LU factorisation, refactorised when needed."""
 
     def __init__(self, indptr: np.ndarray, indices: np.ndarray, tol: float = 1e-6, max_iter: int = 60,
-                 refactor_after: int = 10, precond_float32: bool = True, stats: SolveStats | None = None,
-                 keep_factors_bytes: int = 256 * 2**20):
+                 refactor_after: int = 15, precond_float32: bool = True, stats: SolveStats | None = None,
+                 keep_factors_bytes: int = 256 * 2**20, drop_tol: float = 1e-4):
         self.indptr = indptr.astype(np.int32)
         self.indices = indices.astype(np.int32)
         self.n = len(indptr) - 1
@@ -54,8 +63,10 @@ class ReusedLUSolver:
         self.max_iter = max_iter
         self.refactor_after = refactor_after  # CG needed more iterations: refresh the factor for next time
         self.precond_float32 = precond_float32
+        self.drop_tol = drop_tol  # ILU drop tolerance; 0: complete LU preconditioner
         self.lu = None
         self.lu_f32 = False
+        self.incomplete = False  # the current factor is an ILU (not usable for a direct solve)
         self.stats = stats if stats is not None else SolveStats()
         # factors made during the forward pass, by substep: the adjoint solve of substep i (same matrix
         # A_i) is preconditioned by the factor made nearest to i instead of a stale or fresh one
@@ -90,12 +101,12 @@ class ReusedLUSolver:
         self._factor_bytes += nbytes
 
     def _factor_nbytes(self, lu, f32):
-        return (lu.L.nnz + lu.U.nnz) * (4 + (4 if f32 else 8))
+        return lu.nnz * (4 + (4 if f32 else 8))
 
     def matrix(self, data: np.ndarray) -> sp.csr_matrix:
         return sp.csr_matrix((data, self.indices, self.indptr), shape=(self.n, self.n), copy=False)
 
-    def factorize(self, data: np.ndarray, pivoting: bool = False):
+    def factorize(self, data: np.ndarray, pivoting: bool = False, complete: bool = False):
         # the pattern and the values are symmetric, so the CSR arrays are also a valid CSC of A
         # the preconditioner is factorised in float32 (half the memory traffic in the triangular
         # solves); CG itself runs in float64, so the solution accuracy is unaffected
@@ -103,8 +114,12 @@ class ReusedLUSolver:
         fdata = data.astype(np.float32) if self.lu_f32 else data
         A = sp.csc_matrix((fdata, self.indices, self.indptr), shape=(self.n, self.n), copy=False)
         # symmetric mode, diagonal pivots only: ~15x less fill than partial pivoting on this pattern
+        self.incomplete = not (pivoting or complete) and self.drop_tol > 0
         if pivoting:
             self.lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A")
+        elif self.incomplete:
+            self.lu = spla.spilu(A, drop_tol=self.drop_tol, fill_factor=10.0, permc_spec="MMD_AT_PLUS_A",
+                                 diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
         else:
             self.lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                                 options=dict(SymmetricMode=True))
@@ -121,7 +136,9 @@ class ReusedLUSolver:
         if self.lu is not None:
             x, its = self._pcg(A, b, x0, atol)
             if x is not None:
-                if its > self._refactor_threshold() and not (self.adjoint_mode and self.factors):
+                if its > self._refactor_threshold():
+                    # also in the adjoint pass: kept under this substep, the new factor is then the nearest
+                    # one for the following (earlier) substeps
                     self.factorize(data)
                 return x
             self.stats.fallbacks += 1
@@ -129,6 +146,11 @@ class ReusedLUSolver:
         x, its = self._pcg(A, b, x0, atol)  # with the fresh factor: a few iterations
         if x is not None:
             return x
+        if self.incomplete:  # a direct solve needs the complete factor
+            self.factorize(data, complete=True)
+            x, its = self._pcg(A, b, x0, atol)
+            if x is not None:
+                return x
         x = self._solve_lu(b)
         for _ in range(4):  # iterative refinement
             r = b - A @ x
@@ -180,7 +202,9 @@ class ReusedLUSolver:
                 return x, it + 1
             z = lu._solve_lu(r)
             rz_new = float(r @ z)
-            p *= rz_new / rz
+            # flexible (Polak-Ribiere) beta = z_new . (r_new - r_old) / rz: robust to the slightly
+            # unsymmetric ILU preconditioner; r_new - r_old = -alpha Ap, so it costs one dot product
+            p *= -alpha * float(z @ Ap) / rz
             p += z
             rz = rz_new
         return None, self.max_iter
