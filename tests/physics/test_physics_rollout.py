@@ -245,6 +245,7 @@ def test_default_solver_is_deterministic_and_ignores_optional_packages(monkeypat
         ref = _rollout_and_grads(t, x0, v0, p, W)
         torch.set_num_threads(2)
         runs = [_rollout_and_grads(t, x0, v0, p, W), _rollout_and_grads(t, x0, v0, p, W, solver="lu")]
+        assert torch.get_num_threads() == 2  # the rollout runs on one thread and restores the caller's count
         monkeypatch.setattr(S, "HAVE_CHOLMOD", True)  # as if scikit-sparse were installed
         runs.append(_rollout_and_grads(t, x0, v0, p, W, solver="auto"))
     finally:

@@ -32,10 +32,11 @@ Public API
 Hessian modes: "projected" (default) clamps each spring's transverse stiffness at zero under compression
 and keeps the Gauss-Newton part of each hinge, so M + h^2 K is always SPD (the reference's exact Hessian
 becomes indefinite after a few mm of compression); "exact" uses the true Hessian with an LU-based solve.
-Solvers: CPU - CG preconditioned by a reused sparse factorisation, refactorised when CG needs more than a
-few iterations: a CHOLMOD Cholesky factor ("cholmod", when scikit-sparse is importable; symbolic analysis
-once per mesh) or else a SuperLU one ("lu"); other devices - Jacobi-preconditioned CG in torch with a dense
-fallback.
+Solvers: CPU - CG preconditioned by a reused incomplete LU factorisation (SuperLU's ILU, "lu", the default
+whatever is installed), refactorised when CG needs more than 15 iterations; the opt-in "cholmod" uses a
+CHOLMOD Cholesky factor instead (scikit-sparse; its numbers differ within the tolerance); other devices -
+Jacobi-preconditioned CG in torch with a dense fallback. Deterministic: the same bits on every run and with
+any torch thread count.
 """
 
 from saft.physics.energy import ElementEval, deformation_energy

@@ -170,8 +170,9 @@ class ReusedLUSolver:
 
     def _refactor_threshold(self) -> int:
         # A fixed iteration count, never a measured time: decisions that depend on timings would make
-        # rollouts (and so whole reconstructions) differ from run to run. (A cost model from measured
-        # times gave the same threshold, 10, on the 32×32 and 64×64 grids anyway: 0.25·t_fact/t_iter ≤ 10.)
+        # rollouts (and so whole reconstructions) differ from run to run. 15: on R1 CG settles at ~11
+        # iterations however old the ILU is (a fresh one still needs ~5), so a refactorisation (~23 ms, ~70
+        # iterations) pays only when the matrix has drifted further than that.
         return self.refactor_after
 
     def _solve_lu(self, r):
