@@ -4,6 +4,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -11,6 +13,8 @@ from physics_helpers import grid_mesh  # noqa: E402
 
 from saft.errors import SimulationError  # noqa: E402
 from saft.physics import ClothTopology, ElementEval, PhysicsParams, rollout  # noqa: E402
+from saft.physics import solver as S  # noqa: E402
+from saft.physics.solver import ReusedLUSolver  # noqa: E402
 
 N = 10
 
@@ -79,8 +83,6 @@ def test_one_substep_solves_the_linearised_backward_euler_system():
     pos = rollout(t, x0, v0, p, num_frames=2, substeps=1, tol=1e-13, hessian="exact")
     ev = ElementEval(t, x0, 200.0, 1e-3, 1e-4, "exact")
     n = 3 * t.num_vertices
-    import scipy.sparse as sp
-
     K = sp.csr_matrix((ev.hessian_values().numpy(), t.csr_indices, t.csr_indptr), shape=(n, n)).toarray()
     M = np.repeat(t.mass.numpy(), 3)
     a = (p.a_const + p.a_vert[0]).numpy().reshape(-1)
@@ -98,8 +100,6 @@ def test_indefinite_system_compressed_cloth():
     x0 = 0.97 * t.template + 1e-4 * torch.randn(t.template.shape, generator=g, dtype=torch.float64)
     p = PhysicsParams.default()
     M = np.repeat(t.mass.numpy(), 3)
-    import scipy.sparse as sp
-
     n = 3 * t.num_vertices
     K = sp.csr_matrix(
         (ElementEval(t, x0, 200.0, 1e-3, 1e-4, "exact").hessian_values().numpy(), t.csr_indices, t.csr_indptr),
@@ -208,8 +208,6 @@ def test_torch_cg_solver_matches_lu_solver():
 def test_cholmod_solver_matches_lu_solver(mode):
     """The opt-in CHOLMOD-preconditioned path gives the same rollout and gradients as the SuperLU one
     (tol 1e-12: positions to 1e-10, gradients to rtol 1e-6)."""
-    from saft.physics import solver as S
-
     t, x0, v0, p, W = _setup()
     if not S.HAVE_CHOLMOD:
         with pytest.raises(ValueError, match="scikit-sparse"):
@@ -236,8 +234,6 @@ def _rollout_and_grads(t, x0, v0, p, W, **kw):
 def test_default_solver_is_deterministic_and_ignores_optional_packages(monkeypatch):
     """The default CPU path gives the same bits on every run, with 1 or 2 torch threads, and whether or not
     CHOLMOD is importable ("auto" never picks a different numerical method from what is installed)."""
-    from saft.physics import solver as S
-
     t, x0, v0, p, W = _setup(n=6)
     threads = torch.get_num_threads()
     try:
@@ -258,8 +254,6 @@ def test_default_solver_is_deterministic_and_ignores_optional_packages(monkeypat
 def _system(mode, compress=1.0, drift=0.0):
     """A system matrix A = M + h^2 K of a 12x12 grid (CSR data; ``drift``: metres of random motion added
     to the same perturbed state, as between substeps), its pattern and a right-hand side."""
-    import scipy.sparse as sp
-
     v, q = grid_mesh(12, wave=0.02)
     t = ClothTopology.from_quads(v, q)
     g = torch.Generator().manual_seed(0)
@@ -275,10 +269,6 @@ def _system(mode, compress=1.0, drift=0.0):
 def test_reused_factor_solver_matches_direct_solve(drop_tol):
     """CG preconditioned by the (incomplete, default) or complete LU of a drifted matrix reaches the direct
     solution; the incomplete factor has fewer entries than the complete one."""
-    import scipy.sparse.linalg as spla
-
-    from saft.physics.solver import ReusedLUSolver
-
     t, A0, _, _ = _system("projected")
     _, A, b, Am = _system("projected", drift=2e-4)
     s = ReusedLUSolver(t.csr_indptr, t.csr_indices, tol=1e-12, drop_tol=drop_tol)
@@ -297,10 +287,6 @@ def test_reused_factor_solver_matches_direct_solve(drop_tol):
 def test_reused_factor_solver_indefinite_matrix_falls_back_to_pivoted_lu():
     """The exact Hessian under compression makes A indefinite: CG breaks down, the solver falls back to a
     complete factorisation and a direct solve, still to the requested tolerance."""
-    import scipy.sparse.linalg as spla
-
-    from saft.physics.solver import ReusedLUSolver
-
     t, A, b, Am = _system("exact", compress=0.97)
     assert np.linalg.eigvalsh(Am.toarray()).min() < 0
     s = ReusedLUSolver(t.csr_indptr, t.csr_indices, tol=1e-10)
