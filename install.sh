@@ -1,25 +1,26 @@
 #!/usr/bin/env bash
 # One-step set-up of saft on Debian (run as root, or with sudo for the apt step).
-#   bash install.sh          install saft and its runtime dependencies
+#   bash install.sh          install saft and its runtime dependencies (Ray for `saft batch` included)
 #   bash install.sh --dev    ... plus the test tools
 # On a machine without an NVIDIA GPU torch is installed as the CPU build (torch==2.13.0) BEFORE saft,
 # so that no multi-GB CUDA packages are ever downloaded there.
 set -euo pipefail
 cd "$(dirname "$0")"
-extras=""
-[ "${1:-}" = "--dev" ] && extras="dev"
+dev=""
+[ "${1:-}" = "--dev" ] && dev="yes"
+extras="batch${dev:+,dev}"          # batch: Ray, for `saft batch`
 
 # System packages: Mitsuba's CPU backend (appearance phase) needs LLVM >= 19; the tests use headless
 # Chromium (HTML report) and the Khronos glTF validator (npm).
 apt_packages=""
 ldconfig -p 2>/dev/null | grep -q 'libLLVM\(-\|\.so\.\)19' || apt_packages="libllvm19"
-if [ "$extras" = "dev" ] && ! command -v chromium >/dev/null 2>&1; then apt_packages="$apt_packages chromium"; fi
+if [ -n "$dev" ] && ! command -v chromium >/dev/null 2>&1; then apt_packages="$apt_packages chromium"; fi
 if [ -n "$apt_packages" ] && command -v apt-get >/dev/null 2>&1; then
     SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
     { $SUDO apt-get update -qq && $SUDO apt-get install -y -qq $apt_packages >/dev/null; } \
         || echo "saft install: could not install $apt_packages (appearance on CPU / browser test unavailable)" >&2
 fi
-if [ "$extras" = "dev" ] && command -v npm >/dev/null 2>&1 && [ ! -d "$(npm root -g 2>/dev/null)/gltf-validator" ]; then
+if [ -n "$dev" ] && command -v npm >/dev/null 2>&1 && [ ! -d "$(npm root -g 2>/dev/null)/gltf-validator" ]; then
     npm install -g --silent gltf-validator >/dev/null 2>&1 \
         || echo "saft install: gltf-validator not installed; the glTF validator test will be skipped" >&2
 fi

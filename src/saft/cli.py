@@ -5,6 +5,8 @@
     saft evaluate RESULT_DIR --gt GT_OR_SCENE   CD2, CD1, p2s, depth δ per frame and mean; writes metrics.json
     saft report DIR                             self-contained HTML report of a result
     saft export DIR [--video] [--gltf F.glb] [--sequence obj|ply]
+    saft view DIR [--port N] [--host H]         interactive 3D viewer of a result in the browser (viser)
+    saft batch SCENE... --out DIR [--grid k=v1,v2 ...] [--address ADDR]   many runs as Ray tasks
     saft inspect SCENE                          check a scene and print what saft reads from it
     saft info                                   versions, devices and rendering backends available
 
@@ -140,6 +142,12 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_view(args: argparse.Namespace) -> int:
+    from saft.view import serve
+
+    return serve(args.result_dir, host=args.host, port=args.port)
+
+
 def cmd_info(args: argparse.Namespace) -> int:
     import platform
 
@@ -215,6 +223,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=None, help="folder for videos and sequences (default DIR/export)")
     _add_common(p)
     p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser("view", help="interactive 3D viewer of a result in the browser",
+                       description="Serve an interactive viewer of RESULT_DIR (viser): the cloth of every frame "
+                                   "with a timeline, the camera with the input frame, the static template, the "
+                                   "distance to the ground truth and the material maps. Serves until Ctrl-C.")
+    p.add_argument("result_dir", type=Path)
+    p.add_argument("--port", type=int, default=8080, help="port (default 8080; the next free one if taken)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to listen on (default 127.0.0.1, this machine only; 0.0.0.0 for all)")
+    _add_common(p)
+    p.set_defaults(func=cmd_view)
 
     p = sub.add_parser("inspect", help="check a scene and print what saft reads from it")
     p.add_argument("scene", type=Path, help="a native scene folder or a SAFT/PG-SfT scene .json")

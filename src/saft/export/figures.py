@@ -211,3 +211,14 @@ def depth_figure(pairs: list[tuple[str, np.ndarray, np.ndarray]]) -> bytes:
             fig.colorbar(h, ax=ax, fraction=0.046, pad=0.04)
     fig.tight_layout()
     return fig_to_png(fig)
+
+
+def colour_bar_png(vmin: float, vmax: float, label: str, cmap: str = "viridis", width: float = 4.0) -> bytes:
+    """A horizontal colour bar from vmin to vmax with its label, as PNG bytes (the scale of a colour map)."""
+    import matplotlib as mpl
+
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(width, 0.75), layout="constrained")
+    fig.colorbar(mpl.cm.ScalarMappable(mpl.colors.Normalize(vmin, vmax), cmap=cmap), cax=ax,
+                 orientation="horizontal", label=label)
+    return fig_to_png(fig)
