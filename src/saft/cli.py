@@ -142,6 +142,19 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_batch(args: argparse.Namespace) -> int:
+    from saft.batch import parse_grid, plan_tasks, run_batch
+
+    tasks = plan_tasks(args.scenes, args.out, args.set, parse_grid(args.grid),
+                       {"gt": args.gt, "device": args.device, "frames": args.frames, "root": args.root})
+    outcomes = run_batch(tasks, args.out, address=args.address, num_cpus=args.num_cpus, resources=args.resources,
+                         quiet=args.quiet)
+    failed = [o for o in outcomes if not o.ok]
+    print(f"{len(outcomes) - len(failed)} of {len(outcomes)} tasks finished; summary in {args.out / 'summary.csv'} "
+          f"and {args.out / 'summary.html'}")
+    return 1 if failed else 0
+
+
 def cmd_view(args: argparse.Namespace) -> int:
     from saft.view import serve
 
@@ -223,6 +236,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=None, help="folder for videos and sequences (default DIR/export)")
     _add_common(p)
     p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser("batch", help="reconstruct many scenes × settings as Ray tasks (local or a cluster)",
+                       description="Run `saft reconstruct` for every SCENE and every combination of the --grid "
+                                   "values, as Ray tasks, into OUT/<scene>[/<setting>]. Finished tasks are "
+                                   "skipped and interrupted ones resume when the command is run again. Writes "
+                                   "OUT/summary.csv and OUT/summary.html; logs in OUT/logs/.")
+    p.add_argument("scenes", nargs="+", type=Path, metavar="SCENE", help="native scene folders or scene .json files")
+    p.add_argument("--out", required=True, type=Path, help="batch folder")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="config override for every task (repeatable)")
+    p.add_argument("--grid", action="append", metavar="KEY=V1,V2",
+                   help="one row of settings per value (repeatable: the cartesian product), e.g. "
+                        "--grid shape.lambda_force=0,1e-3")
+    p.add_argument("--gt", action="store_true", help="evaluate every result against its scene's ground truth")
+    p.add_argument("--address", default=None,
+                   help="join this Ray cluster (e.g. auto, or HEAD_IP:6379) instead of starting Ray here")
+    p.add_argument("--num-cpus", type=int, default=None, help="CPUs of the local Ray (default: all)")
+    p.add_argument("--resources", action="append", metavar="NAME=AMOUNT",
+                   help="what each task asks Ray for (default CPU=1, and GPU=1 when the cluster has GPUs)")
+    p.add_argument("--device", choices=["auto", "cpu", "cuda"], default=None, help="default: auto")
+    p.add_argument("--frames", type=int, default=None, help="use only the first N frames of every scene")
+    p.add_argument("--root", type=Path, default=None, help="dataset root for SAFT/PG-SfT scene JSONs")
+    _add_common(p)
+    p.set_defaults(func=cmd_batch)
 
     p = sub.add_parser("view", help="interactive 3D viewer of a result in the browser",
                        description="Serve an interactive viewer of RESULT_DIR (viser): the cloth of every frame "
