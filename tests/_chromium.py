@@ -186,10 +186,11 @@ class Browser:
         return errors
 
     def screenshot(self, clip: dict | None = None) -> np.ndarray:
-        """The page as an H×W×3 uint8 array (PNG over the DevTools protocol)."""
+        """The page (or the `clip` box, in page coordinates) as an H×W×3 uint8 array."""
         from PIL import Image
 
-        params = {"format": "png"} if clip is None else {"format": "png", "clip": {**clip, "scale": 1}}
+        params = {"format": "png"} if clip is None else {"format": "png", "clip": {**clip, "scale": 1},
+                                                         "captureBeyondViewport": True}
         data = base64.b64decode(self.call("Page.captureScreenshot", **params)["data"])
         with Image.open(io.BytesIO(data)) as im:
             return np.asarray(im.convert("RGB"))

@@ -168,6 +168,11 @@ def cmd_info(args: argparse.Namespace) -> int:
 
     print(f"saft {__version__}  python {platform.python_version()}  torch {torch.__version__}")
     print(f"torch threads: {torch.get_num_threads()}  CUDA available: {torch.cuda.is_available()}")
+    from saft.backends import backend_lines
+
+    print("backends:")
+    for line in backend_lines():
+        print(f"  {line}")
     return 0
 
 

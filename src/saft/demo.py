@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import replace
 from pathlib import Path
 from saft.evaluate import evaluate_result_dir, evaluate_static_template, format_comparison_table, ground_truth_spec_for
 from saft.reconstruct import reconstruct
@@ -16,6 +17,7 @@ from saft.synthetic.hanging_cloth import HangingClothSpec, write_hanging_cloth
 log = logging.getLogger("saft")
 
 # The demo runs the published method's defaults; only what a 20-frame, 200×200 scene needs less of is lowered.
+DEMO_NAME = "synthetic hanging cloth (saft demo)"
 DEMO_OVERRIDES = ["texture.epochs=100", "texture.size=256"]
 
 
@@ -27,7 +29,7 @@ def run_demo(out: str | Path, quiet: bool = False, device: str = "auto", overrid
     if not (scene_dir / "scene.json").is_file():
         log.info("making the synthetic scene in %s", scene_dir)
         write_hanging_cloth(scene_dir, spec or HangingClothSpec())
-    scene = load_scene(scene_dir)
+    scene = replace(load_scene(scene_dir), name=DEMO_NAME)
     cfg = load_saft_config(None, DEMO_OVERRIDES + [f'run.device="{device}"'] + list(overrides or []))
     result_dir = out / "result"   # beside the scene, never around it (saft.reconstruct.out_dir)
     reconstruct(scene, cfg, result_dir, resume=checkpoint_path(result_dir).is_file(), quiet=quiet)

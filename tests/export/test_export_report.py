@@ -4,6 +4,7 @@ decoded (driven over the DevTools protocol with a small stdlib websocket client)
 
 from __future__ import annotations
 
+import json
 import re
 import shutil
 from pathlib import Path
@@ -14,7 +15,8 @@ from _chromium import Browser, chromium_path
 from saft.export import report_command
 from saft.export.report import write_report
 
-SECTIONS = ["summary", "losses", "metrics", "params", "maps", "renders", "depth", "timings", "config"]
+SECTIONS = ["summary", "losses", "metrics", "params", "maps", "renders", "novel", "depth", "timings", "config"]
+N_IMAGES = 13   # 2 loss phases, metrics, 5 maps, 2 comparison figures, the novel-view strip, depth, timings
 
 
 @pytest.fixture(scope="module")
@@ -33,11 +35,26 @@ def test_report_content(full_report):
     # self-contained: no external resources of any kind
     assert not re.search(r'(src|href)="(?!data:|#)', text)
     assert "http://" not in text and "https://" not in text
-    assert text.count('<img src="data:image/png;base64,') == 14
+    assert text.count('<img src="data:image/png;base64,') == N_IMAGES
+    assert text.count('<video id="video-') == 2 and text.count('src="data:video/mp4;base64,') == 2
+    assert "<h1>saft reconstruction: wave</h1>" in text and "25 fps (frame_dt 0.04 s)" in text
     assert "wave &lt;test&gt; &amp; co" in text  # config shown, HTML-escaped
-    assert "constant_acceleration" in text and "substeps" in text
     assert "12.25 s" in text
-    assert "cd2_1e-4m2 (1e-4 m^2)" in text and "num_gt_points" not in text  # units shown, counts not plotted
+    # metric names once, readable, with their units; counts not shown
+    assert "<td>CD2 (10⁻⁴ m²)</td>" in text and "<td>p2s (mm)</td>" in text
+    assert "cd2_1e-4m2" not in text and "num_gt_points" not in text
+    # every parameter with its unit
+    params = text.split('<section id="params">')[1].split("</section>")[0]
+    for name, unit in (("Y", "N/m"), ("B", "N·m/rad²"), ("log10_Y", "log₁₀(Y / (N/m))"), ("constant_acceleration", "m/s²"),
+                       ("damping", "1 (velocity factor per substep)"), ("frame_dt", "s"), ("substeps", "per video frame")):
+        assert re.search(rf"<td>{re.escape(name)}</td><td class=\"num\">[^<]*</td><td>{re.escape(unit)}</td>", params), name
+    assert "<td>—</td>" not in params
+    # a = (0, 9.7, 0.1) against the scene's g = (0, 9.81, 0): 0.59° apart, 0.9888 of its magnitude
+    assert "angle between a and g (°)</td><td class=\"num\">0.590657<" in params
+    assert "|a| / |g|</td><td class=\"num\">0.988839<" in params
+    renders = text.split('<section id="renders">')[1].split("</section>")[0]
+    assert "mean PSNR (dB)" in renders and "none held out" in renders and "Held-out frames: none" in renders
+    assert "at the scene's 25 fps (0.24 s)" in renders
 
 
 def test_metrics_series_formats():
@@ -48,7 +65,9 @@ def test_metrics_series_formats():
     assert list(series) == ["CD2"] and series["CD2"][0].tolist() == [2.0, 3.0] and means == {"CD2": 1.5}
     lists = {"per_frame": {"cd1_cm": [1.0, float("nan"), 3.0]}, "units": {"cd1_cm": "cm"}}
     series, means = metrics_series(lists)
-    assert series["cd1_cm (cm)"][0].tolist() == [0.0, 2.0] and means == {}
+    assert series["CD1 (cm)"][0].tolist() == [0.0, 2.0] and means == {}
+    other = {"per_frame": {"custom_m": [1.0]}, "units": {"custom_m": "m"}}
+    assert list(metrics_series(other)[0]) == ["custom_m (m)"]
 
 
 def test_report_without_optional_parts(bare_result_dir, tmp_path):
@@ -56,7 +75,8 @@ def test_report_without_optional_parts(bare_result_dir, tmp_path):
     text = out.read_text()
     assert "no metrics.json" in text and "no depth ground truth" in text
     assert "material/" not in text.split('id="maps"')[1].split("</section>")[0]
-    assert text.count("<img ") == 5  # 2 loss phases, texture, contact sheet, timings
+    assert text.count("<img ") == 5  # 2 loss phases, texture, comparison figure, timings
+    assert "no material/novel_view/" in text and text.count("<video ") == 1
 
 
 def test_report_minimal_result(bare_result_dir, tmp_path):
@@ -84,9 +104,34 @@ def test_report_in_headless_chromium(browser, full_report):
     assert errors == []
     assert info["title"].startswith("saft report")
     assert info["sections"] == SECTIONS
-    assert info["figures"] == len(info["images"]) == 14
+    assert info["figures"] == len(info["images"]) == N_IMAGES
     bad = [i for i, (complete, w, h) in enumerate(info["images"]) if not (complete and w > 0 and h > 0)]
     assert bad == [], f"images that did not decode: {bad}"
+    # the embedded comparison videos play: decoded, 6 frames at the scene's 25 fps
+    videos = json.loads(browser.evaluate(
+        "Promise.all(Array.from(document.querySelectorAll('video')).map(v => new Promise(ok => {"
+        " const done = () => ok([v.readyState, v.duration, v.videoWidth, v.error ? v.error.code : 0]);"
+        " if (v.readyState >= 2) done(); else { v.addEventListener('loadeddata', done);"
+        " v.addEventListener('error', done); } }))).then(JSON.stringify)"))
+    assert len(videos) == 2
+    for ready, duration, width, err in videos:
+        assert err == 0 and ready >= 2 and width > 0 and abs(duration - 6 / 25) < 0.05, videos
+    assert browser.evaluate("document.querySelectorAll('.speed button').length") == 6
+    # what the reader sees: the difference panels in colour (the colour map), labelled, with the colour bar
+    shot = _element_shot(browser, "#renders figure img")
+    saturated = (shot.max(axis=2).astype(int) - shot.min(axis=2)) > 120
+    assert shot.std() > 20 and saturated.mean() > 0.01
+    strip = _element_shot(browser, "#novel figure img")
+    assert strip.shape[1] > 3 * strip.shape[0]  # a strip: frames side by side
+
+
+def _element_shot(browser, selector: str):
+    """A screenshot of the first element matching `selector`."""
+    box = json.loads(browser.evaluate(
+        f"(() => {{ const r = document.querySelector('{selector}').getBoundingClientRect();"
+        " return JSON.stringify({x: r.x + window.scrollX, y: r.y + window.scrollY, width: r.width,"
+        " height: r.height}); })()"))
+    return browser.screenshot(box)
 
 
 def test_browser_check_sees_errors(browser, tmp_path):

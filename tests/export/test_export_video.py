@@ -13,11 +13,43 @@ from saft.scene.camera import orbit_cameras
 
 
 def test_comparison_videos(result_dir, tmp_path):
+    import imageio.v3 as iio
+    import imageio_ffmpeg
+
     res = read_result(result_dir)
     path, n = V.comparison_video(res, tmp_path / "cmp.mp4")
     assert n == res.num_frames and V.count_video_frames(path) == res.num_frames
+    # the scene's frame rate: 6 frames 0.04 s apart play in 0.24 s
+    reader = imageio_ffmpeg.read_frames(str(path))
+    meta = next(reader)
+    reader.close()
+    assert meta["fps"] == pytest.approx(25.0)
+    # labelled panels: 50-px panels enlarged ×7 (≥ 320 px), each under a dark header bar with white text
+    frame = iio.imread(path, plugin="FFMPEG", index=3)
+    header = frame[:12]
+    assert frame.shape[1] == 3 * 350 and frame.shape[0] > 7 * 40
+    for j in range(3):
+        bar = header[:, j * 350:(j + 1) * 350].astype(int)
+        assert (np.abs(bar - [36, 52, 77]).max(axis=2) < 24).mean() > 0.6  # the bar
+        assert (bar.min(axis=2) > 200).sum() > 10                            # its label's white text
     path, n = V.comparison_video(res, tmp_path / "app.mp4", material=True)
     assert V.count_video_frames(path) == res.num_frames
+
+
+def test_comparison_frames_colour_the_difference(tmp_path):
+    from saft.io_utils import write_image
+
+    target = np.zeros((20, 30, 3), np.float32)
+    rendered = target.copy()
+    rendered[5:10, 5:10] = 0.5                                   # one wrong square
+    write_image(tmp_path / "frame_000.png", np.concatenate([rendered, target, target], axis=1))
+    (frame,) = V.comparison_frames([tmp_path / "frame_000.png"], 0.02)
+    scale = frame.shape[1] // 3 // 30
+    head = frame.shape[0] - 20 * scale
+    diff = frame[head:, 2 * 30 * scale:]
+    hot = diff[7 * scale, 7 * scale].astype(int)
+    cold = diff[15 * scale, 20 * scale].astype(int)
+    assert hot.sum() > 600 and cold.sum() < 30   # the error at the top of the colour scale, elsewhere black
 
 
 def test_odd_sizes_are_padded(tmp_path):

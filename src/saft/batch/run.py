@@ -3,8 +3,9 @@
 Ray is started on this machine (or joined, with an address) by the driver; each task asks for one CPU (one
 GPU as well when the cluster has GPUs; `--resources` changes that) and runs `python -m saft reconstruct
 SCENE --out DIR/<scene>[/<setting>] --quiet [--set ...] [--gt] [--resume]` with its output in
-DIR/logs/<task>.log. The subprocess keeps a crashing run from taking the worker down, and Ctrl-C reaches it as
-SIGINT, so it checkpoints. Tasks finished earlier are skipped; tasks with a checkpoint resume. A failed task
+DIR/logs/<task>.log. The subprocess keeps a crashing run from taking the worker down. Tasks finished earlier
+are skipped; tasks with a checkpoint resume (after Ctrl-C, the runs stop with their workers and resume from
+their last periodic checkpoint, written at most run.checkpoint_seconds apart). A failed task
 is reported with the last line of its log and does not stop the others. At the end DIR/summary.csv and
 DIR/summary.html are written (saft.batch.summary).
 """
@@ -13,7 +14,6 @@ from __future__ import annotations
 
 import logging
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -75,7 +75,7 @@ def _last_line(path: Path) -> str:
 
 def execute_task(task: BatchTask, batch_dir: str, threads: int) -> dict:
     """Run one task (inside a Ray worker): `saft reconstruct` in a subprocess, its output to the task's log.
-    Returns {"status": "done" | "failed" | "interrupted", "wall_s", "error", "resumed"}."""
+    Returns {"status": "done" | "failed" | "interrupted" (the run exited with 130), "wall_s", "error", "resumed"}."""
     resume = task_state(task) == "resume"
     log_path = task.log_path(Path(batch_dir))
     log_path.parent.mkdir(parents=True, exist_ok=True)
@@ -85,17 +85,7 @@ def execute_task(task: BatchTask, batch_dir: str, threads: int) -> dict:
     with open(log_path, "a") as fh:
         fh.write(f"$ {' '.join(cmd)}\n")
         fh.flush()
-        proc = subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, env=dict(os.environ))
-        try:
-            rc = proc.wait()
-        except (KeyboardInterrupt, SystemExit):   # the task was cancelled: let the run checkpoint, then stop
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(timeout=120)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-            return {"status": "interrupted", "wall_s": time.perf_counter() - t0, "error": "interrupted",
-                    "resumed": resume}
+        rc = subprocess.run(cmd, stdout=fh, stderr=subprocess.STDOUT, env=dict(os.environ)).returncode
     wall = time.perf_counter() - t0
     if rc != 0:
         return {"status": "interrupted" if rc == 130 else "failed", "wall_s": wall, "resumed": resume,
@@ -211,11 +201,11 @@ def run_batch(tasks: list[BatchTask], batch_dir: str | Path, *, address: str | N
                     for i in pending.values():
                         display.info(tasks[i], _last_line(tasks[i].log_path(batch_dir)))
             except KeyboardInterrupt:
-                log.warning("interrupted: asking the running tasks to checkpoint (run the same command to resume)")
-                for ref in pending:
-                    ray.cancel(ref)
+                log.warning("interrupted: the running reconstructions stop too; the same command resumes them "
+                            "from their last checkpoint")
                 for ref, i in pending.items():
-                    outcomes[i] = TaskOutcome(tasks[i], "interrupted", 0.0, "interrupted")
+                    ray.cancel(ref, force=True)
+                    outcomes[i] = TaskOutcome(tasks[i], "interrupted", 0.0, "interrupted; resumes on the next run")
                 raise
             finally:
                 display.stop()

@@ -17,11 +17,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from saft.batch.plan import BatchTask
+from saft.evaluate import CD1, CD2, DEPTH, METRIC_LABELS, P2S_L1
 from saft.io_utils import atomic_write_text
 
 # (metrics.json key, csv column, readable name with its unit)
-METRICS = (("cd2_1e-4m2", "cd2_1e-4m2", "CD2 (10⁻⁴ m²)"), ("cd1_cm", "cd1_cm", "CD1 (cm)"),
-           ("p2s_l1_mm", "p2s_mm", "p2s (mm)"), ("depth_cm", "depth_cm", "depth δ (cm)"))
+METRICS = ((CD2, "cd2_1e-4m2", METRIC_LABELS[CD2]), (CD1, "cd1_cm", METRIC_LABELS[CD1]),
+           (P2S_L1, "p2s_mm", METRIC_LABELS[P2S_L1]), (DEPTH, "depth_cm", METRIC_LABELS[DEPTH]))
 CSV_FIELDS = ["scene", "setting", "status", "wall_s", *(col for _, col, _ in METRICS), "error", "out_dir"]
 
 

@@ -50,6 +50,7 @@ Input problems (missing folder, no files, wrong shapes, unreadable files, count 
 """
 
 from saft.evaluate.evaluate import (
+    METRIC_LABELS,
     METRICS_FILENAME,
     evaluate_result_dir,
     evaluate_sequence,
@@ -82,7 +83,7 @@ from saft.evaluate.metrics import (
 )
 
 __all__ = [
-    "CD1", "CD2", "DEPTH", "METRIC_KEYS", "METRICS_FILENAME", "NUM_POINTS", "P2S_L1", "P2S_L2", "P2S_SYM_L1",
+    "CD1", "CD2", "DEPTH", "METRIC_KEYS", "METRIC_LABELS", "METRICS_FILENAME", "NUM_POINTS", "P2S_L1", "P2S_L2", "P2S_SYM_L1",
     "P2S_SYM_L2", "GroundTruthSpec", "closest_points_on_mesh", "depth_error", "depth_error_cm",
     "evaluate_result_dir", "evaluate_sequence", "format_metrics_table", "frame_metrics", "frame_rng",
     "ground_truth_files", "load_ground_truth_frames", "nearest_neighbor_distances",

@@ -26,6 +26,11 @@ UNITS = {
     CD2: "1e-4 m^2", CD1: "cm", P2S_L1: "mm", P2S_L2: "1e-4 m^2", P2S_SYM_L1: "mm", P2S_SYM_L2: "1e-4 m^2",
     DEPTH: "cm",
 }
+# readable names with their units, for tables and figures people read (report, viewer, batch summary)
+METRIC_LABELS = {
+    CD2: "CD2 (10⁻⁴ m²)", CD1: "CD1 (cm)", P2S_L1: "p2s (mm)", P2S_L2: "p2s L2 (10⁻⁴ m²)",
+    P2S_SYM_L1: "symmetric p2s (mm)", P2S_SYM_L2: "symmetric p2s L2 (10⁻⁴ m²)", DEPTH: "depth δ (cm)",
+}
 DEFINITIONS = {
     CD2: "mean sq. NN distance GT->mesh samples + mean sq. NN distance samples->GT (summed)",
     CD1: "as cd2 with unsquared distances",

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import io
 import math
-from pathlib import Path
 
 import numpy as np
-from saft.io_utils import read_image
+
+from saft.evaluate import METRIC_LABELS
 
 # columns of log.csv that are not loss terms
 LOG_META_COLUMNS = {"phase", "epoch", "frames", "frames_in_use", "seconds", "time", "lr", "step"}
@@ -131,7 +131,8 @@ def metrics_series(metrics: dict) -> tuple[dict[str, tuple[np.ndarray, np.ndarra
         means = {k: v for k, v in ((k, _float(v)) for k, v in mean_src.items()) if v is not None}
 
     def label(k: str) -> str:
-        return f"{k} ({units[k]})" if k in units else k
+        """The readable name with its unit ("CD2 (10⁻⁴ m²)"), else the key with metrics.json's unit."""
+        return METRIC_LABELS.get(k) or (f"{k} ({units[k]})" if k in units else k)
 
     keep = [k for k in series if not k.startswith("num_")]  # counts (e.g. num_gt_points) are not errors
     return ({label(k): (np.asarray(series[k][0]), np.asarray(series[k][1])) for k in keep},
@@ -164,25 +165,6 @@ def timings_figure(timings: dict[str, float]) -> bytes:
     ax.invert_yaxis()
     ax.set_xlabel("seconds")
     ax.grid(True, axis="x", alpha=0.3)
-    return fig_to_png(fig)
-
-
-def contact_sheet(paths: list[Path], max_frames: int = 8, title: str = "") -> bytes:
-    """Up to `max_frames` evenly spaced frame images, one per row, each labelled with its file name."""
-    plt = _plt()
-    if len(paths) > max_frames:
-        idx = np.unique(np.round(np.linspace(0, len(paths) - 1, max_frames)).astype(int))
-        paths = [paths[i] for i in idx]
-    imgs = [read_image(p) for p in paths]
-    aspect = max(im.shape[1] / im.shape[0] for im in imgs)
-    width = 9.0
-    fig, axes = plt.subplots(len(imgs), 1, figsize=(width, len(imgs) * (width / aspect + 0.35)), squeeze=False)
-    for ax, im, p in zip(axes[:, 0], imgs, paths):
-        ax.imshow(im[:, :, 0] if im.shape[2] == 1 else im[:, :, :3], cmap="gray" if im.shape[2] == 1 else None,
-                  interpolation="nearest")
-        ax.set_title(p.stem + (f" — {title}" if title else ""), fontsize=9)
-        ax.set_axis_off()
-    fig.tight_layout()
     return fig_to_png(fig)
 
 
@@ -222,3 +204,69 @@ def colour_bar_png(vmin: float, vmax: float, label: str, cmap: str = "viridis", 
     fig.colorbar(mpl.cm.ScalarMappable(mpl.colors.Normalize(vmin, vmax), cmap=cmap), cax=ax,
                  orientation="horizontal", label=label)
     return fig_to_png(fig)
+
+
+def split_panels(img: np.ndarray, n: int) -> list[np.ndarray]:
+    """The n side-by-side panels of a frame image (renders/: rendered | target | |difference|, n = 3;
+    material/renders/: re-render | target, n = 2)."""
+    w = img.shape[1] // n
+    return [img[:, i * w:(i + 1) * w, :3] for i in range(n)]
+
+
+def abs_difference(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """|a − b| averaged over the colour channels (0 = equal, 1 = black against white)."""
+    return np.abs(a[:, :, :3].astype(np.float32) - b[:, :, :3].astype(np.float32)).mean(axis=2)
+
+
+def difference_scale(diffs: list[np.ndarray]) -> float:
+    """Top of the difference colour scale: the 99th percentile over all pixels that differ at all, at least
+    0.02, so the map shows where the error is instead of a few outliers."""
+    vals = np.concatenate([d[d > 1e-3].ravel() for d in diffs]) if diffs else np.zeros(0)
+    return max(float(np.percentile(vals, 99)), 0.02) if vals.size else 0.02
+
+
+def comparison_figure(rows: list[tuple[str, np.ndarray, np.ndarray]], first: str = "rendered",
+                      cmap: str = "magma") -> bytes:
+    """One row per frame: labelled panels `first | target | |difference|`, the difference as a colour map
+    on one scale shared by all rows, with its colour bar."""
+    plt = _plt()
+    diffs = [abs_difference(r, t) for _, r, t in rows]
+    vmax = difference_scale(diffs)
+    h, w = rows[0][1].shape[:2]
+    fig, axes = plt.subplots(len(rows), 3, figsize=(9.6, len(rows) * 3.0 * h / w + 0.9), squeeze=False,
+                             layout="constrained")
+    image = None
+    for ax_row, (label, rendered, target), diff in zip(axes, rows, diffs):
+        for ax, img, title in ((ax_row[0], rendered, f"{label}: {first}"), (ax_row[1], target, f"{label}: target"),
+                               (ax_row[2], diff, f"{label}: |difference|, mean {diff.mean():.3f}")):
+            if img.ndim == 2:
+                image = ax.imshow(img, cmap=cmap, vmin=0.0, vmax=vmax, interpolation="nearest")
+            else:
+                ax.imshow(np.clip(img, 0, 1), interpolation="nearest")
+            ax.set_title(title, fontsize=9)
+            ax.set_axis_off()
+    fig.colorbar(image, ax=axes[:, 2].tolist(), orientation="horizontal", fraction=0.06, pad=0.02,
+                 label="|difference| (mean over R, G, B; 1 = black vs white)")
+    return fig_to_png(fig)
+
+
+def strip_figure(frames: list[tuple[str, np.ndarray]], title: str) -> bytes:
+    """Frames side by side in one row, each labelled (the novel view through time)."""
+    plt = _plt()
+    h, w = frames[0][1].shape[:2]
+    fig, axes = plt.subplots(1, len(frames), figsize=(1.9 * len(frames), 1.9 * h / w + 0.6), squeeze=False,
+                             layout="constrained")
+    for ax, (label, img) in zip(axes[0], frames):
+        ax.imshow(np.clip(img[:, :, :3], 0, 1), interpolation="nearest")
+        ax.set_title(label, fontsize=9)
+        ax.set_axis_off()
+    fig.suptitle(title, fontsize=10)
+    return fig_to_png(fig)
+
+
+def psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float:
+    """Peak signal-to-noise ratio (dB) of two [0, 1] images, over the pixels of `mask` (all without one)."""
+    err = (a[:, :, :3].astype(np.float64) - b[:, :, :3].astype(np.float64)) ** 2
+    err = err[mask] if mask is not None else err.reshape(-1, 3)
+    mse = float(err.mean()) if err.size else float("nan")
+    return float("inf") if mse == 0 else 10.0 * math.log10(1.0 / mse)

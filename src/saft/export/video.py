@@ -1,8 +1,9 @@
 """mp4 videos of a result (H.264 via imageio-ffmpeg's bundled ffmpeg, yuv420p so every player opens them).
 
-* comparison.mp4 — renders/frame_*.png as the reconstruction wrote them (rendered | target | |difference|),
-  at the video's frame rate 1/frame_dt.
-* appearance.mp4 — material/renders/frame_*.png (the appearance phase's re-renders), when present.
+* comparison.mp4 — renders/frame_*.png as labelled panels "rendered | target | |difference|", the
+  difference as a colour map on one scale for the whole video (named in its label), at the scene's frame
+  rate 1/frame_dt; small frames are enlarged (whole pixels) so that the labels are legible.
+* appearance.mp4 — material/renders/frame_*.png (the appearance phase's re-renders) the same way, when present.
 * orbit.mp4 — a novel view: a camera circling the cloth about the world's up axis, starting from the
   working camera, while the sequence plays (slowed to last at least `min_seconds`; at most 30 fps). Rendered with
   saft.render.render_cloth (the textured cloth, simple headlight shading); if that renderer cannot be
@@ -21,6 +22,7 @@ from typing import Iterable, Iterator
 import numpy as np
 
 from saft.errors import SaftInputError
+from saft.export.figures import abs_difference, difference_scale, split_panels
 from saft.io_utils import atomic_path, read_image
 from saft.render import render_cloth
 from saft.result import Result, list_render_files, read_result
@@ -83,29 +85,72 @@ def count_video_frames(path: str | Path) -> int:
     return int(imageio_ffmpeg.count_frames_and_secs(str(path))[0])
 
 
-def _fps(res: Result) -> float:
+def fps_of(res: Result) -> float:
+    """The scene's frame rate 1/frame_dt (25 fps when a result does not say)."""
     return 1.0 / res.frame_dt if res.frame_dt > 0 else 25.0
 
 
-def _image_frames(paths: list[Path]) -> Iterator[np.ndarray]:
-    first = None
+MIN_PANEL_WIDTH = 320   # px; smaller panels are enlarged by a whole factor
+
+
+def _font(size: int):
+    from PIL import ImageFont
+
+    return ImageFont.load_default(size=size)
+
+
+def _labelled(panel: np.ndarray, text: str, scale: int) -> np.ndarray:
+    """A panel (H×W×3 float) enlarged `scale` times, under a header bar with its label."""
+    from PIL import Image, ImageDraw
+
+    img = _to_uint8_even(panel)
+    if scale > 1:
+        img = np.repeat(np.repeat(img, scale, axis=0), scale, axis=1)
+    w = img.shape[1]
+    size = max(11, min(18, w // 22))
+    head = Image.new("RGB", (w, size + 10), (36, 52, 77))
+    ImageDraw.Draw(head).text((6, 4), text, fill=(255, 255, 255), font=_font(size))
+    return np.concatenate([np.asarray(head), img], axis=0)
+
+
+def comparison_frames(paths: list[Path], frame_dt: float, material: bool = False) -> list[np.ndarray]:
+    """renders/ (rendered | target | …) or material/renders/ (re-render | target) frames as labelled panels
+    "rendered | target | |difference|", the difference coloured (magma) on one scale for all frames."""
+    import matplotlib
+
+    pairs = []
+    shape = None
     for p in paths:
-        img = _to_uint8_even(read_image(p))
-        if first is None:
-            first = img.shape
-        elif img.shape != first:
-            raise SaftInputError(p, f"is {img.shape[1]}x{img.shape[0]}, the first frame is {first[1]}x{first[0]}")
-        yield img
+        img = read_image(p)
+        if shape is None:
+            shape = img.shape
+        elif img.shape != shape:
+            raise SaftInputError(p, f"is {img.shape[1]}x{img.shape[0]}, the first frame is {shape[1]}x{shape[0]}")
+        pairs.append(split_panels(img, 2 if material else 3)[:2])
+    diffs = [abs_difference(r, t) for r, t in pairs]
+    vmax = difference_scale(diffs)
+    cmap = matplotlib.colormaps["magma"]
+    w = pairs[0][0].shape[1]
+    scale = max(1, -(-MIN_PANEL_WIDTH // w))
+    first = "re-render" if material else "rendered"
+    out = []
+    for k, ((rendered, target), diff) in enumerate(zip(pairs, diffs)):
+        coloured = cmap(np.clip(diff / vmax, 0.0, 1.0))[:, :, :3]
+        out.append(np.concatenate([
+            _labelled(rendered, f"{first}  frame {k}, t = {k * frame_dt:.2f} s", scale),
+            _labelled(target, "target", scale),
+            _labelled(coloured, f"|difference|  black 0 .. white {vmax:.2f}", scale)], axis=1))
+    return out
 
 
 def comparison_video(result: str | Path | Result, out: str | Path, material: bool = False) -> tuple[Path, int]:
-    """renders/ (or material/renders/) frames as an mp4 at 1/frame_dt fps."""
+    """renders/ (or material/renders/) frames as a labelled mp4 at the scene's frame rate 1/frame_dt."""
     res = result if isinstance(result, Result) else read_result(result)
     files = list_render_files(res.folder, material=material)
     if not files:
         raise SaftInputError(res.folder / ("material/renders" if material else "renders"), "no frame_*.png renders")
-    path, n = write_mp4(out, _image_frames(files), _fps(res))
-    log.info("wrote %s (%d frames)", path, n)
+    path, n = write_mp4(out, comparison_frames(files, res.frame_dt, material), fps_of(res))
+    log.info("wrote %s (%d frames at %.4g fps)", path, n, fps_of(res))
     return path, n
 
 
@@ -189,7 +234,7 @@ class _MatplotlibOrbit:
 def orbit_frames(res: Result, width: int = 480, height: int = 360, fps: float | None = None,
                  min_seconds: float = 4.0, renderer: str = "auto") -> tuple[Iterator[np.ndarray], int, float, str]:
     """(frame iterator, frame count, fps, renderer used) of the orbiting novel view."""
-    fps = min(_fps(res), 30.0) if fps is None else float(fps)
+    fps = min(fps_of(res), 30.0) if fps is None else float(fps)
     n_out = max(res.num_frames, int(math.ceil(min_seconds * fps)))
     cams = orbit_cameras(res.vertices, res.camera, res.up_direction(), n_out, width, height)
     tex = _orbit_texture(res)

@@ -35,6 +35,7 @@ def write_shape_outputs(out_dir: Path, scene: Scene, camera: Camera, positions: 
     atomic_write_json(out_dir / "scene.json", {
         "name": scene.name, "source": str(scene.source) if scene.source else None,
         "num_frames": int(len(positions)), "frame_dt": scene.frame_dt,
+        "gravity": [float(g) for g in scene.gravity_or_default()], "gravity_given": scene.gravity is not None,
         "camera": camera.to_json(), "full_camera": scene.camera.to_json(),
         "crop": scene.crop.to_json() if scene.crop else None,
         "ground_truth_dir": str(scene.ground_truth_dir) if scene.ground_truth_dir else None,

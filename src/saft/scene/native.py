@@ -6,7 +6,7 @@
       rgb/*.png        frames in sorted order
       mask/*.png       optional; 0 = background
       texture.png      optional
-      scene.json       optional: {"fps"} or {"frame_dt"}, "pinned_vertices", "gravity", "crop",
+      scene.json       optional: "name" (default: the folder's), {"fps"} or {"frame_dt"}, "pinned_vertices", "gravity", "crop",
                        "ground_truth": {"dir": "gt", "frame": "world" | "camera"}
 """
 
@@ -158,8 +158,11 @@ def read_native_scene(folder: str | Path) -> Scene:
     elif (folder / "gt").is_dir():
         gt_dir = (folder / "gt").resolve()
 
+    name = meta.get("name")
+    if name is not None and (not isinstance(name, str) or not name.strip()):
+        raise SaftInputError(meta_path, "'name' must be a non-empty string")
     scene = Scene(
-        name=folder.resolve().name, template=template, camera=camera, frames=frames, texture=texture,
+        name=name.strip() if name else folder.resolve().name, template=template, camera=camera, frames=frames, texture=texture,
         pinned=pinned, frame_dt=frame_dt, gravity=gravity, crop=crop, source=folder,
         ground_truth_dir=gt_dir, ground_truth_frame=gt_frame,
     )

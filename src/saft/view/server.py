@@ -22,6 +22,7 @@ from trimesh.visual import TextureVisuals
 from trimesh.visual.material import PBRMaterial
 
 from saft.errors import BackendUnavailableError
+from saft.evaluate import CD1, CD2, DEPTH, METRIC_LABELS, P2S_L1
 from saft.io_utils import read_image
 from saft.view.data import (
     ViewData,
@@ -39,8 +40,7 @@ log = logging.getLogger("saft")
 COLOUR_TEXTURE = "texture (phase 1)"
 COLOUR_MATERIAL = "material (phase 3)"
 COLOUR_DISTANCE = "distance to ground truth"
-METRIC_LABELS = {"cd2_1e-4m2": "CD2 (10⁻⁴ m²)", "cd1_cm": "CD1 (cm)", "p2s_l1_mm": "p2s (mm)",
-                 "depth_cm": "depth δ (cm)"}
+VIEW_METRICS = (CD2, CD1, P2S_L1, DEPTH)
 
 
 def _import_viser():
@@ -186,7 +186,8 @@ class ClothViewer:
         if not isinstance(per, dict):
             return ""
         vals = []
-        for key, label in METRIC_LABELS.items():
+        for key in VIEW_METRICS:
+            label = METRIC_LABELS[key]
             seq = per.get(key)
             if isinstance(seq, list) and k < len(seq) and isinstance(seq[k], (int, float)):
                 vals.append(f"{label} {seq[k]:.3g}")

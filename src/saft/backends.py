@@ -1,0 +1,74 @@
+"""What `saft info` reports about the optional backends: each one's version and whether saft can use it here.
+
+    Mitsuba 3    the appearance phase (variants compiled in; the one for this machine's device is probed)
+    nvdiffrast   the CUDA rasterizer (else saft's PyTorch rasterizer)
+    CHOLMOD      scikit-sparse, the faster preconditioner of the cloth simulation on CPU
+    Ray          `saft batch`
+    viser        `saft view`
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import importlib.util
+
+import torch
+
+from saft.appearance.mitsuba_backend import ensure_backend
+from saft.errors import BackendUnavailableError
+from saft.render.nvdiffrast_backend import nvdiffrast_available
+
+
+def _version(dist: str) -> str | None:
+    try:
+        return importlib.metadata.version(dist)
+    except importlib.metadata.PackageNotFoundError:
+        return None
+
+
+def _mitsuba() -> str:
+    version = _version("mitsuba")
+    if version is None:
+        return "not installed (pip install mitsuba): no appearance phase"
+    import mitsuba as mi
+
+    device = "cuda" if torch.cuda.is_available() else "cpu"
+    try:
+        usable = f"{ensure_backend(device)} works on this machine"
+    except BackendUnavailableError as exc:
+        usable = f"not usable here: {exc}"
+    return f"{version}, variants {', '.join(mi.variants())}; {usable}"
+
+
+def _nvdiffrast() -> str:
+    version = _version("diffrp-nvdiffrast") or _version("nvdiffrast")
+    if importlib.util.find_spec("nvdiffrast") is None:
+        return "not installed (CUDA only: pip install 'saft[cuda]'); the PyTorch rasterizer is used"
+    return f"{version or 'installed'}; " + ("used on CUDA" if nvdiffrast_available() else
+                                            "not usable without CUDA; the PyTorch rasterizer is used")
+
+
+def _cholmod() -> str:
+    if importlib.util.find_spec("sksparse") is None:
+        return "not installed (optional: scikit-sparse); SuperLU preconditioner in the simulation"
+    try:
+        import sksparse.cholmod  # noqa: F401
+    except ImportError as exc:
+        return f"scikit-sparse installed but not importable ({exc})"
+    return f"scikit-sparse {_version('scikit-sparse') or ''} — used by the cloth simulation on CPU".replace("  ", " ")
+
+
+def _package(dist: str, purpose: str, install: str) -> str:
+    version = _version(dist)
+    return f"{version} ({purpose})" if version else f"not installed ({install}); {purpose} unavailable"
+
+
+def backend_lines() -> list[str]:
+    """One line per backend: name, version and whether saft uses it on this machine."""
+    return [
+        f"Mitsuba 3:  {_mitsuba()}",
+        f"nvdiffrast: {_nvdiffrast()}",
+        f"CHOLMOD:    {_cholmod()}",
+        f"Ray:        {_package('ray', 'saft batch', 'pip install ray; install.sh installs it')}",
+        f"viser:      {_package('viser', 'saft view', 'pip install viser')}",
+    ]
