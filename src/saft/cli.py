@@ -22,6 +22,8 @@ import warnings
 from pathlib import Path
 
 from saft import __version__
+from saft.backends import backend_lines
+from saft.batch import parse_grid, plan_tasks, run_batch
 from saft.demo import run_demo
 from saft.errors import BackendUnavailableError, SaftInputError, SimulationError
 from saft.evaluate import (evaluate_result_dir, format_metrics_table, ground_truth_files, ground_truth_spec_for,
@@ -32,6 +34,7 @@ from saft.reconstruct.checkpoint import checkpoint_path
 from saft.reconstruct.config import load_saft_config
 from saft.scene import load_scene
 from saft.scene.frames import check_all_frames
+from saft.view import serve
 
 log = logging.getLogger("saft")
 
@@ -143,8 +146,6 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_batch(args: argparse.Namespace) -> int:
-    from saft.batch import parse_grid, plan_tasks, run_batch
-
     tasks = plan_tasks(args.scenes, args.out, args.set, parse_grid(args.grid),
                        {"gt": args.gt, "device": args.device, "frames": args.frames, "root": args.root})
     outcomes = run_batch(tasks, args.out, address=args.address, num_cpus=args.num_cpus, resources=args.resources,
@@ -156,8 +157,6 @@ def cmd_batch(args: argparse.Namespace) -> int:
 
 
 def cmd_view(args: argparse.Namespace) -> int:
-    from saft.view import serve
-
     return serve(args.result_dir, host=args.host, port=args.port)
 
 
@@ -168,8 +167,6 @@ def cmd_info(args: argparse.Namespace) -> int:
 
     print(f"saft {__version__}  python {platform.python_version()}  torch {torch.__version__}")
     print(f"torch threads: {torch.get_num_threads()}  CUDA available: {torch.cuda.is_available()}")
-    from saft.backends import backend_lines
-
     print("backends:")
     for line in backend_lines():
         print(f"  {line}")

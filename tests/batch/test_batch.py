@@ -14,11 +14,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import grid_quad_obj, write_image
 
 from saft.batch.plan import parse_grid, plan_tasks, settings, task_state
 from saft.batch.summary import TaskOutcome, summary_html
 from saft.errors import SaftInputError
+from saft.io_utils import write_image
+from saft.scene import write_obj
+from saft.synthetic.hanging_cloth import grid_template
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = ['run.device="cpu"', "texture.epochs=2", "texture.size=16", "shape.initial_frames=2",
@@ -29,14 +31,15 @@ TINY = ['run.device="cpu"', "texture.epochs=2", "texture.size=16", "shape.initia
 def _scene(folder: Path, shade: int) -> Path:
     """A 4×4 grid cloth, 3 frames of 40×32 px, with its own world-frame ground truth (the template)."""
     folder.mkdir(parents=True)
-    (folder / "template.obj").write_text(grid_quad_obj())
+    mesh = grid_template(4, 0.4)
+    verts = mesh.vertices + [0.0, 0.0, 1.0]   # 1 m in front of the camera
+    write_obj(folder / "template.obj", mesh, verts)
     (folder / "camera.json").write_text(json.dumps({"width": 40, "height": 32,
                                                     "K": [[40, 0, 19.5], [0, 40, 15.5], [0, 0, 1]],
                                                     "world_to_camera": np.eye(4).tolist()}))
-    verts = np.array([[float(t) for t in ln.split()[1:]] for ln in grid_quad_obj().splitlines() if ln.startswith("v ")])
     for i in range(3):
-        img = np.zeros((32, 40, 3), np.uint8)
-        img[8:24, 12:28] = shade + 20 * i
+        img = np.zeros((32, 40, 3), np.float32)
+        img[8:24, 12:28] = (shade + 20 * i) / 255.0
         write_image(folder / "rgb" / f"{i:03d}.png", img)
         (folder / "gt").mkdir(exist_ok=True)
         np.save(folder / "gt" / f"{i:03d}.npy", verts + [0.0, 0.002 * i, 0.0])

@@ -162,8 +162,8 @@ def read_native_scene(folder: str | Path) -> Scene:
     if name is not None and (not isinstance(name, str) or not name.strip()):
         raise SaftInputError(meta_path, "'name' must be a non-empty string")
     scene = Scene(
-        name=name.strip() if name else folder.resolve().name, template=template, camera=camera, frames=frames, texture=texture,
-        pinned=pinned, frame_dt=frame_dt, gravity=gravity, crop=crop, source=folder,
+        name=name.strip() if name else folder.resolve().name, template=template, camera=camera, frames=frames,
+        texture=texture, pinned=pinned, frame_dt=frame_dt, gravity=gravity, crop=crop, source=folder,
         ground_truth_dir=gt_dir, ground_truth_frame=gt_frame,
     )
     scene.validate(meta_path if meta_path.exists() else None)

@@ -20,7 +20,6 @@ from scipy.spatial.transform import Rotation
 from saft.errors import SaftInputError
 from saft.evaluate import GroundTruthSpec, load_ground_truth_frames
 from saft.export.figures import colour_bar_png
-from saft.export.gltf import up_direction
 from saft.io_utils import read_image
 from saft.result import Result, list_render_files, read_result
 from saft.scene.camera import Camera
@@ -52,7 +51,7 @@ class ViewData:
 
 
 def _up(res: Result) -> np.ndarray:
-    up = up_direction(res)
+    up = res.up_direction()
     return np.array([0.0, -1.0, 0.0]) if up is None else np.asarray(up, dtype=np.float64)
 
 
