@@ -38,9 +38,12 @@ class BatchTask:
     def label(self) -> str:
         return f"{self.scene_name}/{self.setting}" if self.setting else self.scene_name
 
-    def command(self, python: str, resume: bool) -> list[str]:
-        """The `saft reconstruct` command line of this task."""
-        cmd = [python, "-m", "saft", "reconstruct", str(self.scene), "--out", str(self.out_dir), "--quiet"]
+    def command(self, python: str, resume: bool, threads: int = 0) -> list[str]:
+        """The `saft reconstruct` command line of this task (`threads` > 0: torch's CPU threads, before the
+        user's overrides, which win). Not --quiet: its log shows each phase's progress and ETA."""
+        cmd = [python, "-m", "saft", "reconstruct", str(self.scene), "--out", str(self.out_dir)]
+        if threads > 0:
+            cmd += ["--set", f"run.threads={threads}"]
         for item in self.overrides:
             cmd += ["--set", item]
         if self.options.get("gt"):

@@ -79,8 +79,7 @@ def execute_task(task: BatchTask, batch_dir: str, threads: int) -> dict:
     resume = task_state(task) == "resume"
     log_path = task.log_path(Path(batch_dir))
     log_path.parent.mkdir(parents=True, exist_ok=True)
-    cmd = task.command(sys.executable, resume)
-    cmd[cmd.index("--quiet") + 1:cmd.index("--quiet") + 1] = ["--set", f"run.threads={max(1, threads)}"]
+    cmd = task.command(sys.executable, resume, max(1, threads))
     t0 = time.perf_counter()
     with open(log_path, "a") as fh:
         fh.write(f"$ {' '.join(cmd)}\n")

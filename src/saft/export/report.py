@@ -275,14 +275,14 @@ def _psnrs(pairs: list[tuple[int, np.ndarray, np.ndarray]]) -> np.ndarray:
     return np.asarray(vals)
 
 
-def _fit_note(res: Result, n_frames: int) -> str:
+def _fit_note(res: Result, n_frames: int, appearance: bool) -> str:
     app = read_config_dict(res.folder).get("appearance", {})
     per_epoch = int(app.get("frames_per_epoch", 0) or 0)
     batches = f" in random mini-batches of {per_epoch} frames" if 0 < per_epoch < n_frames else ""
-    return ("Held-out frames: none. Phase 2 fits the shape to every frame and phase 3 fitted the material on "
-            f"all {n_frames} frames{batches}; these PSNRs therefore measure how well the fit reproduces the "
-            "frames it was fitted to, not how it generalises to unseen frames. PSNR is over the pixels where "
-            "the rendering or the target shows cloth (not black).")
+    phase3 = f" and phase 3 fitted the material on all {n_frames} frames{batches}" if appearance else ""
+    return (f"Held-out frames: none. Phase 2 fits the shape to every frame{phase3}; these PSNRs therefore "
+            "measure how well the fit reproduces the frames it was fitted to, not how it generalises to unseen "
+            "frames. PSNR is over the pixels where the rendering or the target shows cloth (not black).")
 
 
 def _video(res: Result, material: bool) -> str:
@@ -330,7 +330,7 @@ def _section_renders(res: Result, max_frames: int) -> str:
                    for label, n, ok in psnr_rows if ok.size)
     table = ("<h3>PSNR</h3><table><tr><th>images</th><th>frames</th><th>mean PSNR (dB)</th><th>min (dB)</th>"
              f"<th>max (dB)</th><th>frames used for fitting</th></tr>{body}</table>"
-             f'<p class="note">{html.escape(_fit_note(res, res.num_frames))}</p>')
+             f'<p class="note">{html.escape(_fit_note(res, res.num_frames, len(psnr_rows) > 1))}</p>')
     return table + "".join(parts)
 
 
