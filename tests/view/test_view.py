@@ -146,3 +146,33 @@ def test_view_in_headless_chromium(result_with_gt, tmp_path):
             out = proc.communicate()[0]
     assert proc.returncode == 0, out
     assert "saft view: stopped" in out
+
+
+def test_viewer_scene_every_colouring(result_with_gt):
+    """The viser scene without a browser: every colouring of every frame builds its mesh, one is shown at a
+    time, the ground-truth cloud follows the frame, and the timeline wraps around while playing."""
+    viser = pytest.importorskip("viser")
+    from saft.view.server import COLOUR_DISTANCE, COLOUR_MATERIAL, COLOUR_TEXTURE, ClothViewer
+
+    server = viser.ViserServer(host="127.0.0.1", port=_free_port(), verbose=False)
+    try:
+        viewer = ClothViewer(server, load_view_data(result_with_gt))
+        assert list(viewer.materials) == [COLOUR_TEXTURE, COLOUR_MATERIAL, COLOUR_DISTANCE]
+        viewer.show_gt.value = True
+        for colouring in viewer.materials:
+            viewer.colouring.value = colouring
+            for k in (0, 5):
+                viewer.show(k)
+                shown = [key for key, handle in viewer.meshes.items() if handle.visible]
+                assert shown == [(colouring, k)]
+                assert [j for j, h in viewer.clouds.items() if h.visible] == [k]
+        assert viewer.time_text.content == "t = 0.200 s" and "CD2 (10⁻⁴ m²) 1.5" in viewer.metrics_text.content
+        assert viewer.frustum is not None and viewer.frustum.image.shape == (40, 50, 3)
+        viewer.play.value = True
+        viewer.slider.value = 5
+        viewer.show(5)
+        viewer.step()
+        time.sleep(0.3)  # the slider's callback runs on viser's thread
+        assert viewer.frame == 0
+    finally:
+        server.stop()
