@@ -2,7 +2,7 @@
 
     Mitsuba 3    the appearance phase (variants compiled in; the one for this machine's device is probed)
     nvdiffrast   the CUDA rasterizer (else saft's PyTorch rasterizer)
-    CHOLMOD      scikit-sparse, the faster preconditioner of the cloth simulation on CPU
+    CHOLMOD      scikit-sparse: an opt-in preconditioner of the cloth simulation (Python API, solver="cholmod")
     Ray          `saft batch`
     viser        `saft view`
 """
@@ -50,12 +50,13 @@ def _nvdiffrast() -> str:
 
 def _cholmod() -> str:
     if importlib.util.find_spec("sksparse") is None:
-        return "not installed (optional: scikit-sparse); SuperLU preconditioner in the simulation"
+        return "not installed (optional scikit-sparse, opt-in solver='cholmod'); saft uses SuperLU"
     try:
         import sksparse.cholmod  # noqa: F401
     except ImportError as exc:
         return f"scikit-sparse installed but not importable ({exc})"
-    return f"scikit-sparse {_version('scikit-sparse') or ''} — used by the cloth simulation on CPU".replace("  ", " ")
+    return (f"scikit-sparse {_version('scikit-sparse') or ''}; opt-in: saft.physics.rollout(..., solver='cholmod')"
+            " (saft itself uses SuperLU)").replace("  ", " ")
 
 
 def _package(dist: str, purpose: str, install: str) -> str:
