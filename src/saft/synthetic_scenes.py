@@ -18,8 +18,8 @@ cloth. The simulation uses a different substep count, stiffnesses and damping th
 Frame 0 is the template (the rest shape), at rest. Ground truth: gt/frame_*.npy surface samples (world
 frame) and gt_vertices.npy, the simulated vertices (F, V, 3).
 
-    from saft.synthetic_scenes import BenchSceneSpec, write_benchmark_scenes
-    write_benchmark_scenes("/tmp/saft-bench-scenes", BenchSceneSpec())
+Usage: ``write_benchmark_scenes("/tmp/saft-bench-scenes", BenchSceneSpec())`` (benchmarks/bench_scenes.py
+does this, then reconstructs and scores every scene).
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ from saft.scene.frames import FrameSequence
 from saft.scene.mesh import QuadMesh
 from saft.scene.native import write_native_scene
 from saft.scene.scene import Scene
-from saft.scene.synthetic import grid_template, procedural_texture
+from saft.synthetic.hanging_cloth import grid_template, procedural_texture
 
 SCENARIOS = {
     "a": "hanging from its top edge (top row held), blown by wind varying in time and space",
