@@ -70,6 +70,7 @@ class ShapeConfig:
 
     enabled: bool = True
     initial_frames: int = 3               # frames 0..2 first
+    initial_epochs: int = 0               # epochs on the initial frames (0 = add_frame_every)
     add_frame_every: int = 5              # one more frame every 5 epochs
     final_epochs: int = 15                # then this many epochs with all frames
     lambda_image: float = 1.0
@@ -77,6 +78,17 @@ class ShapeConfig:
     lambda_energy: float = 2.0            # R_E, stiffnesses detached
     lambda_force: float = 2e-4            # R_F
     force_directions: Literal["current", "template"] = "current"  # viewing directions for R_F
+    # What R_F penalises: "vertex" = the per-vertex accelerations D_f alone; "total" = C + D_f, the total
+    # external acceleration (the paper's supplement and the reference's code).
+    force_target: Literal["vertex", "total"] = "vertex"
+    # Point tracks (saft.reconstruct.tracks): λ of the track loss (0 = off), the forward-backward check
+    # in pixels, and the Huber threshold in pixels beyond which a residual counts linearly.
+    lambda_track: float = 0.0
+    track_fb_threshold: float = 1.0
+    track_huber: float = 3.0
+    # After antialias, multiply the rendered RGB and coverage by the hard coverage (the reference): only
+    # the silhouette gradients that land on covered pixels survive.
+    hard_coverage: bool = False
     optimize_stiffness: bool = True
     lr_stiffness: float = 2e-2
     lr_const_accel: float = 1e-1
@@ -84,6 +96,11 @@ class ShapeConfig:
     normalize_loss: bool = True           # divide the loss by its detached value before backward
     grad_clip: float = 1e3
     autoclip_quantile: float = 0.75
+    autoclip_history: int = 1000          # gradient norms kept for AutoClip (the reference: 11)
+    autoclip_include_current: bool = True  # the current norm counts in its own quantile (reference: no)
+    # Learning rates fall with a cosine over the final all-frame epochs to this fraction (1 = constant,
+    # the reference); a constant rate leaves the loss oscillating at the end.
+    final_lr_fraction: float = 1.0
     center_vertex_accel: bool = True      # subtract the mean per-vertex acceleration before each epoch
     warm_start_new_frames: bool = True    # a newly added frame starts from the previous frame's accelerations
     # Start of the constant acceleration: "gravity" (the reference), "zero", or "auto" = gravity when the
@@ -107,8 +124,10 @@ class SaftConfig:
 def shape_schedule(num_frames: int, cfg: ShapeConfig) -> list[int]:
     """Frames in use at each epoch of phase 2: initial_frames, +1 every add_frame_every epochs, then final_epochs."""
     first = min(num_frames, max(2, cfg.initial_frames))
-    grow = (num_frames - first) * cfg.add_frame_every
-    frames = [min(num_frames, first + e // cfg.add_frame_every) for e in range(grow)]
+    initial = cfg.initial_epochs if cfg.initial_epochs > 0 else cfg.add_frame_every
+    frames = [first] * initial if first < num_frames else []
+    for f in range(first + 1, num_frames):
+        frames += [f] * cfg.add_frame_every
     return frames + [num_frames] * cfg.final_epochs
 
 

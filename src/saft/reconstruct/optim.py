@@ -1,8 +1,9 @@
 """Per-parameter Adam with the reference method's gradient handling.
 
 For every parameter tensor, separately: a step whose gradient is not finite is skipped; the gradient norm
-is clipped at `clip`; then it is clipped again at the `quantile` of the norms seen so far (AutoClip,
-Seetharaman et al. 2020). Each parameter has its own Adam (own learning rate, own moments).
+is clipped at `clip`; then it is clipped again at the `quantile` of the last `history` norms (AutoClip,
+Seetharaman et al. 2020), the current one included or, as in the reference, only the earlier ones. Each
+parameter has its own Adam (own learning rate, own moments); `set_lr_factor` scales every learning rate.
 """
 
 from __future__ import annotations
@@ -22,12 +23,14 @@ class ParamSpec:
 
 
 class ClippedAdam:
-    def __init__(self, specs: list[ParamSpec], clip: float = 1e3, quantile: float = 0.75, history: int = 1000):
+    def __init__(self, specs: list[ParamSpec], clip: float = 1e3, quantile: float = 0.75, history: int = 1000,
+                 include_current: bool = True):
         self.specs = {s.name: s for s in specs}
         self.optims = {s.name: torch.optim.Adam([s.tensor], lr=s.lr, betas=s.betas) for s in specs}
         self.clip = clip
         self.quantile = quantile
         self.history_len = history
+        self.include_current = include_current
         self.history: dict[str, list[float]] = {s.name: [] for s in specs}
         self.skipped: dict[str, int] = {s.name: 0 for s in specs}
 
@@ -53,14 +56,23 @@ class ClippedAdam:
                 g.mul_(self.clip / norm)
                 norm = self.clip
             hist = self.history[name]
-            hist.append(norm)
+            if self.include_current:
+                hist.append(norm)
+            limit = float(np.quantile(hist, self.quantile)) if hist else norm
+            if not self.include_current:
+                hist.append(norm)
             if len(hist) > self.history_len:
-                del hist[0]
-            limit = float(np.quantile(hist, self.quantile))
+                del hist[: len(hist) - self.history_len]
             if norm > limit > 0:
                 g.mul_(limit / norm)
             self.optims[name].step()
         return norms
+
+    def set_lr_factor(self, factor: float) -> None:
+        """Every learning rate := its initial value × factor."""
+        for name, opt in self.optims.items():
+            for group in opt.param_groups:
+                group["lr"] = self.specs[name].lr * factor
 
     def state_dict(self) -> dict:
         return {"optims": {k: o.state_dict() for k, o in self.optims.items()},

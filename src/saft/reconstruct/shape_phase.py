@@ -2,11 +2,13 @@
 
 Each epoch simulates from the template through the frames in use and renders them with the fixed texture:
 
-    L = λ_im·L_im + λ_sil·L_sil + λ_E·R_E + λ_F·R_F
+    L = λ_im·L_im + λ_sil·L_sil + λ_E·R_E + λ_F·R_F + λ_track·L_track
 
 L_im, L_sil: mean squared RGB / mask errors averaged over the frames in use; R_E: the deformation energy of
 the simulated frames with the stiffnesses detached (it regularizes the geometry, not the material); R_F:
-the external accelerations' components across the viewing directions of the CURRENT simulated vertices.
+the external accelerations' components across the viewing directions of the CURRENT simulated vertices
+(or the template's); L_track: the distance of the projected vertices to their optical-flow point tracks
+(saft.reconstruct.tracks; not in the paper).
 The optimized parameters are log10 Y, B, S (clamped to their ranges), a constant acceleration (gravity +
 mean wind) and per-vertex per-frame accelerations, each with its own clipped Adam.
 """
@@ -24,6 +26,7 @@ from saft.reconstruct.config import PhysicsConfig, ShapeConfig, shape_schedule
 from saft.reconstruct.context import PhaseContext
 from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_loss
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
+from saft.reconstruct.tracks import VertexTracks, compute_vertex_tracks, track_loss
 
 # Frames rendered per batch inside an epoch; the physics graph is kept, the render graphs are not.
 RENDER_CHUNK = 8
@@ -58,7 +61,8 @@ def _make_optimizer(params: ShapeParams, cfg: ShapeConfig) -> ClippedAdam:
              ParamSpec("vertex_accel", params.vertex_accel, cfg.lr_vertex_accel)]
     if cfg.optimize_stiffness:
         specs += [ParamSpec(n, getattr(params, n), cfg.lr_stiffness) for n in ("log10_Y", "log10_B", "log10_S")]
-    return ClippedAdam(specs, clip=cfg.grad_clip, quantile=cfg.autoclip_quantile)
+    return ClippedAdam(specs, clip=cfg.grad_clip, quantile=cfg.autoclip_quantile, history=cfg.autoclip_history,
+                       include_current=cfg.autoclip_include_current)
 
 
 def initial_const_accel(gravity: np.ndarray, pinned, cfg: ShapeConfig) -> np.ndarray:
@@ -121,7 +125,7 @@ class ShapeSimulator:
 
 
 def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, cfg: ShapeConfig,
-                        texture: torch.Tensor, frames: int) -> dict[str, float]:
+                        texture: torch.Tensor, frames: int, tracks: VertexTracks | None = None) -> dict[str, float]:
     """Forward + backward of one epoch; leaves the gradients in the parameters. Returns the loss terms."""
     params = state.params
     positions = sim.simulate(params, frames)                      # (F, V, 3) float64, with graph
@@ -132,9 +136,13 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
     for start in range(0, frames, RENDER_CHUNK):
         stop = min(frames, start + RENDER_CHUNK)
         out = ctx.render(pos_leaf[start:stop], texture)
+        rgb, mask = out.rgb, out.mask
+        if cfg.hard_coverage:
+            covered = (out.rast[..., 3] > 0).to(rgb.dtype)
+            rgb, mask = rgb * covered.unsqueeze(-1), mask * covered
         n = stop - start
-        l_img = image_loss(out.rgb, ctx.target_rgb[start:stop]) * (n / frames)
-        l_sil = silhouette_loss(out.mask, ctx.target_mask[start:stop]) * (n / frames)
+        l_img = image_loss(rgb, ctx.target_rgb[start:stop]) * (n / frames)
+        l_sil = silhouette_loss(mask, ctx.target_mask[start:stop]) * (n / frames)
         chunk = cfg.lambda_image * l_img + cfg.lambda_sil * l_sil
         if chunk.requires_grad:
             chunk.backward()
@@ -146,22 +154,46 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
     cam_center = torch.as_tensor(ctx.camera.center, dtype=positions.dtype, device=positions.device)
     if frames > 1:
         accel = params.vertex_accel[: frames - 1]
+        if cfg.force_target == "total":
+            accel = accel + params.const_accel
         dir_pos = positions[1:frames] if cfg.force_directions == "current" else sim.template.expand(frames - 1, -1, -1)
         force = force_regularizer(accel, dir_pos, cam_center)
     else:
         force = torch.zeros((), dtype=positions.dtype, device=positions.device)
-    reg = cfg.lambda_energy * energy + cfg.lambda_force * force
+    track = (track_loss(positions, tracks, ctx.camera, cfg.track_huber) if tracks is not None
+             else torch.zeros((), dtype=positions.dtype, device=positions.device))
+    reg = cfg.lambda_energy * energy + cfg.lambda_force * force + cfg.lambda_track * track
     grad_pos = pos_leaf.grad.to(positions.dtype) if pos_leaf.grad is not None else torch.zeros_like(positions)
     torch.autograd.backward([positions, reg], [grad_pos, torch.ones_like(reg)])
 
     total = (cfg.lambda_image * sums["image"] + cfg.lambda_sil * sums["silhouette"]
-             + cfg.lambda_energy * float(energy.detach()) + cfg.lambda_force * float(force.detach()))
+             + cfg.lambda_energy * float(energy.detach()) + cfg.lambda_force * float(force.detach())
+             + cfg.lambda_track * float(track.detach()))
     if cfg.normalize_loss and total > 0:
         # Dividing the loss by its detached value scales every gradient by 1/L (scale-free steps).
         for t in params.tensors().values():
             if t.grad is not None:
                 t.grad.div_(total)
-    return {"loss": total, "energy": float(energy.detach()), "force": float(force.detach()), **sums}
+    return {"loss": total, "energy": float(energy.detach()), "force": float(force.detach()),
+            "track": float(track.detach()), **sums}
+
+
+def lr_factor(epoch: int, first_final: int, cfg: ShapeConfig) -> float:
+    """Learning-rate factor: 1 until the final all-frame epochs, then a cosine down to final_lr_fraction."""
+    if cfg.final_lr_fraction >= 1.0 or epoch < first_final or cfg.final_epochs <= 1:
+        return 1.0
+    progress = (epoch - first_final) / (cfg.final_epochs - 1)
+    return cfg.final_lr_fraction + (1.0 - cfg.final_lr_fraction) * 0.5 * (1.0 + np.cos(np.pi * progress))
+
+
+def shape_tracks(ctx: PhaseContext, cfg: ShapeConfig, texture: torch.Tensor) -> VertexTracks | None:
+    """Point tracks of the template's vertices through the targets, or None when the track loss is off."""
+    if cfg.lambda_track <= 0 or ctx.target_rgb.shape[0] < 2:
+        return None
+    with torch.no_grad():
+        depth0 = ctx.render(ctx.template_positions[None].to(torch.float32), texture).depth[0]
+    return compute_vertex_tracks(ctx.target_rgb, ctx.target_mask, ctx.template_positions, ctx.camera, depth0,
+                                 cfg.track_fb_threshold)
 
 
 def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, phys: PhysicsConfig,
@@ -170,6 +202,8 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
     n_frames = ctx.target_rgb.shape[0]
     schedule = shape_schedule(n_frames, cfg)
     ranges = {"log10_Y": phys.log10_Y_range, "log10_B": phys.log10_B_range, "log10_S": phys.log10_S_range}
+    tracks = shape_tracks(ctx, cfg, texture)
+    first_final = len(schedule) - cfg.final_epochs
     ctx.progress.start_phase("shape", len(schedule), state.epoch)
     while state.epoch < len(schedule):
         t0 = time.perf_counter()
@@ -183,8 +217,9 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
         if cfg.center_vertex_accel and params.vertex_accel.numel():
             with torch.no_grad():
                 params.vertex_accel -= params.vertex_accel.mean(dim=(0, 1), keepdim=True)
+        state.optimizer.set_lr_factor(lr_factor(state.epoch, first_final, cfg))
         state.optimizer.zero_grad()
-        terms = epoch_loss_and_grad(ctx, sim, state, cfg, texture, frames)
+        terms = epoch_loss_and_grad(ctx, sim, state, cfg, texture, frames, tracks)
         state.optimizer.step()
         with torch.no_grad():
             for name, (lo, hi) in ranges.items():

@@ -1,0 +1,155 @@
+"""Point tracks of the template's vertices through the video, and the track loss of the shape phase.
+
+The image loss alone pulls a simulated frame only as far as the printed pattern's period: a frame that
+starts off by more settles a period away, and every later frame inherits the error through the
+simulation. Point tracks give each visible vertex a 2D target in every frame that does not depend on
+the print registering under the fixed texture, on the lighting, or on how far the simulation is off.
+
+Tracks come from classical dense optical flow (OpenCV's DIS, no learned weights, nothing downloaded):
+every vertex visible in frame 0 starts at its projection and is carried from frame to frame by the
+forward flow. A track ends for good at the first frame where the backward flow does not bring it back
+(forward–backward check: occlusion, a fold, flow leaving the cloth) or where it leaves the cloth's mask.
+
+    L_track = mean over valid (frame, vertex) of huber(|π(x_v,t) − p_v,t| / s)
+
+π: the working camera's projection, p: the track, s: the image's larger side in pixels (so the loss is
+in fractions of the image and does not change with the working resolution).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from saft.scene.camera import Camera
+
+
+@dataclass
+class VertexTracks:
+    points: torch.Tensor    # (N, V, 2) pixel coordinates (u = column, v = row) in the working image
+    valid: torch.Tensor     # (N, V) bool: the track is trusted in that frame
+    scale: float            # pixels per unit of the loss (the image's larger side)
+
+    def coverage(self) -> np.ndarray:
+        """(N,) fraction of the vertices with a valid track in each frame."""
+        return self.valid.float().mean(dim=1).cpu().numpy()
+
+
+def to_gray_u8(rgb: np.ndarray) -> np.ndarray:
+    """(H, W, 3) float sRGB in [0, 1] → (H, W) uint8 luma (Rec. 601 weights)."""
+    gray = rgb[..., 0] * 0.299 + rgb[..., 1] * 0.587 + rgb[..., 2] * 0.114
+    return np.clip(gray * 255.0 + 0.5, 0, 255).astype(np.uint8)
+
+
+def bilinear_sample(image: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Sample an (H, W) or (H, W, C) array at float pixel positions (P, 2) = (u, v); clamped at the border."""
+    H, W = image.shape[:2]
+    u = np.clip(points[:, 0], 0, W - 1)
+    v = np.clip(points[:, 1], 0, H - 1)
+    u0 = np.clip(np.floor(u).astype(np.int64), 0, W - 2) if W > 1 else np.zeros_like(u, dtype=np.int64)
+    v0 = np.clip(np.floor(v).astype(np.int64), 0, H - 2) if H > 1 else np.zeros_like(v, dtype=np.int64)
+    du, dv = u - u0, v - v0
+    u1, v1 = np.minimum(u0 + 1, W - 1), np.minimum(v0 + 1, H - 1)
+    if image.ndim == 3:
+        du, dv = du[:, None], dv[:, None]
+    top = image[v0, u0] * (1 - du) + image[v0, u1] * du
+    bottom = image[v1, u0] * (1 - du) + image[v1, u1] * du
+    return top * (1 - dv) + bottom * dv
+
+
+def dense_flow(gray0: np.ndarray, gray1: np.ndarray) -> np.ndarray:
+    """(H, W, 2) optical flow from gray0 to gray1 (OpenCV DIS, 'medium' preset), float32 pixels."""
+    import cv2  # opencv-python-headless; imported here so that saft imports without cv2's start-up cost
+
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    return dis.calc(gray0, gray1, None)
+
+
+def track_points(rgb: np.ndarray, mask: np.ndarray, start: np.ndarray, start_valid: np.ndarray,
+                 fb_threshold: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Carry points from frame 0 through the video by chained forward flow.
+
+    rgb (N, H, W, 3) float sRGB, mask (N, H, W) in [0, 1], start (P, 2) pixel positions in frame 0,
+    start_valid (P,) bool. Returns points (N, P, 2) and valid (N, P): a point stays valid while the
+    backward flow returns it within `fb_threshold` pixels and it stays on the mask.
+    """
+    n = rgb.shape[0]
+    points = np.zeros((n, len(start), 2), dtype=np.float64)
+    valid = np.zeros((n, len(start)), dtype=bool)
+    points[0], valid[0] = start, start_valid
+    gray_prev = to_gray_u8(rgb[0])
+    for t in range(1, n):
+        gray = to_gray_u8(rgb[t])
+        fwd = dense_flow(gray_prev, gray)
+        bwd = dense_flow(gray, gray_prev)
+        p = points[t - 1] + bilinear_sample(fwd, points[t - 1])
+        back = p + bilinear_sample(bwd, p)
+        ok = valid[t - 1] & (np.linalg.norm(back - points[t - 1], axis=1) <= fb_threshold)
+        H, W = mask.shape[1:]
+        inside = (p[:, 0] >= 0) & (p[:, 0] <= W - 1) & (p[:, 1] >= 0) & (p[:, 1] <= H - 1)
+        ok &= inside & (bilinear_sample(mask[t], p) >= 0.5)
+        points[t] = np.where(ok[:, None], p, points[t - 1])
+        valid[t] = ok
+        gray_prev = gray
+    return points, valid
+
+
+def project(points: torch.Tensor, camera: Camera) -> tuple[torch.Tensor, torch.Tensor]:
+    """World points (..., 3) → pixel coordinates (..., 2) in `camera`'s image and camera depth (...)."""
+    R = torch.as_tensor(camera.world_to_camera[:3, :3], dtype=points.dtype, device=points.device)
+    t = torch.as_tensor(camera.world_to_camera[:3, 3], dtype=points.dtype, device=points.device)
+    K = torch.as_tensor(camera.K, dtype=points.dtype, device=points.device)
+    pc = points @ R.T + t
+    z = pc[..., 2]
+    xy = pc[..., :2] / z.clamp_min(1e-9).unsqueeze(-1)
+    uv = xy @ K[:2, :2].T + K[:2, 2]
+    return uv, z
+
+
+def visible_vertices(template: torch.Tensor, camera: Camera, mask0: np.ndarray, depth0: np.ndarray,
+                     depth_tolerance: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel positions (V, 2) of the template's vertices in frame 0 and which of them can start a track:
+    inside the image, on the frame-0 mask, and not hidden by the cloth itself (rendered depth)."""
+    uv, z = project(template.detach().to(torch.float64), camera)
+    uv, z = uv.cpu().numpy(), z.cpu().numpy()
+    H, W = mask0.shape
+    inside = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= W - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= H - 1)
+    on_mask = bilinear_sample(mask0, uv) >= 0.5
+    cols = np.clip(np.rint(uv[:, 0]).astype(np.int64), 0, W - 1)
+    rows = np.clip(np.rint(uv[:, 1]).astype(np.int64), 0, H - 1)
+    d = depth0[rows, cols]
+    unoccluded = (d <= 0) | (z <= d + depth_tolerance)
+    return uv, inside & on_mask & unoccluded
+
+
+def compute_vertex_tracks(rgb: torch.Tensor, mask: torch.Tensor, template: torch.Tensor, camera: Camera,
+                          depth0: torch.Tensor, fb_threshold: float) -> VertexTracks:
+    """Tracks of every template vertex through the target video (rgb (N, H, W, 3), mask (N, H, W))."""
+    rgb_np = rgb.detach().cpu().numpy()
+    mask_np = mask.detach().cpu().numpy()
+    start, ok = visible_vertices(template, camera, mask_np[0], depth0.detach().cpu().numpy())
+    pts, valid = track_points(rgb_np, mask_np, start, ok, fb_threshold)
+    return VertexTracks(points=torch.as_tensor(pts, dtype=template.dtype, device=template.device),
+                        valid=torch.as_tensor(valid, device=template.device),
+                        scale=float(max(camera.width, camera.height)))
+
+
+def track_loss(positions: torch.Tensor, tracks: VertexTracks, camera: Camera, huber_delta: float) -> torch.Tensor:
+    """L_track of simulated frames 0..F-1 (positions (F, V, 3)); zero when no track is valid.
+
+    huber_delta in pixels: residuals beyond it count linearly (a track that went astray pulls less)."""
+    F = positions.shape[0]
+    valid = tracks.valid[:F]
+    if not bool(valid.any()):
+        return positions.sum() * 0.0
+    uv, _ = project(positions, camera)
+    r = (uv - tracks.points[:F].to(uv)).norm(dim=-1) / tracks.scale
+    d = huber_delta / tracks.scale
+    h = torch.where(r <= d, 0.5 * r * r, d * (r - 0.5 * d))
+    return h[valid].mean()
+
+
+__all__ = ["VertexTracks", "compute_vertex_tracks", "track_loss", "track_points", "project", "visible_vertices",
+           "dense_flow", "bilinear_sample", "to_gray_u8"]

@@ -1,0 +1,119 @@
+"""Point tracks from optical flow and the track loss of the shape phase."""
+
+import numpy as np
+import pytest
+import torch
+
+from saft.reconstruct.config import ShapeConfig
+from saft.reconstruct.optim import ClippedAdam, ParamSpec
+from saft.reconstruct.shape_phase import lr_factor
+from saft.reconstruct.tracks import VertexTracks, bilinear_sample, project, track_loss, track_points
+from saft.scene.camera import look_at
+from saft.scene.synthetic import procedural_texture
+
+
+def _smooth_texture(size: int, seed: int = 0) -> np.ndarray:
+    return procedural_texture(size, seed)
+
+
+def test_bilinear_sample_interpolates_and_clamps():
+    img = np.arange(12, dtype=np.float64).reshape(3, 4)
+    pts = np.array([[0.0, 0.0], [1.5, 0.0], [1.0, 1.5], [10.0, -3.0]])
+    assert np.allclose(bilinear_sample(img, pts), [0.0, 1.5, 7.0, 3.0])
+
+
+def test_tracks_follow_a_translating_pattern():
+    tex = _smooth_texture(160)
+    shifts = [(0.0, 0.0), (2.0, 1.0), (4.0, 2.0), (6.0, 3.0)]
+    frames = np.stack([np.roll(tex, (int(dy), int(dx)), axis=(0, 1)) for dx, dy in shifts])
+    mask = np.ones(frames.shape[:3], dtype=np.float32)
+    start = np.array([[40.0, 50.0], [80.0, 80.0], [100.0, 60.0]])
+    pts, valid = track_points(frames, mask, start, np.ones(3, bool), fb_threshold=1.0)
+    assert valid.all()
+    for t, (dx, dy) in enumerate(shifts):
+        assert np.abs(pts[t] - (start + [dx, dy])).max() < 0.35
+
+
+def test_a_track_ends_where_the_flow_is_not_consistent_or_leaves_the_mask():
+    rng = np.random.default_rng(0)
+    tex = _smooth_texture(128)
+    noise = rng.uniform(0, 1, tex.shape).astype(np.float32)       # frame 1 unrelated to frame 0
+    frames = np.stack([tex, noise, noise])
+    mask = np.ones(frames.shape[:3], dtype=np.float32)
+    start = rng.uniform(20, 100, (40, 2))
+    _, valid = track_points(frames, mask, start, np.ones(40, bool), fb_threshold=0.5)
+    assert valid[0].all() and valid[1].mean() < 0.5
+    assert not (valid[2] & ~valid[1]).any()                       # once lost, lost for good
+    mask_off = mask.copy()
+    mask_off[1:] = 0.0
+    _, valid = track_points(np.stack([tex, tex]), mask_off[:2], start, np.ones(40, bool))
+    assert not valid[1].any()
+
+
+def _camera():
+    K = np.array([[100.0, 0, 31.5], [0, 100.0, 31.5], [0, 0, 1]])
+    return look_at((0.1, 0.05, 1.0), (0, 0, 0), (0, 1, 0), K, 64, 64)
+
+
+def test_projection_matches_the_camera():
+    cam = _camera()
+    pts = np.random.default_rng(1).uniform(-0.2, 0.2, (10, 3))
+    uv, z = project(torch.tensor(pts), cam)
+    uv_ref, z_ref = cam.project(pts)
+    assert np.allclose(uv.numpy(), uv_ref) and np.allclose(z.numpy(), z_ref)
+
+
+def test_track_loss_is_zero_on_the_tracks_and_pulls_towards_them():
+    cam = _camera()
+    x = torch.tensor(np.random.default_rng(2).uniform(-0.2, 0.2, (2, 5, 3)))
+    uv, _ = project(x, cam)
+    valid = torch.ones(2, 5, dtype=torch.bool)
+    tracks = VertexTracks(points=uv.clone(), valid=valid, scale=64.0)
+    assert float(track_loss(x, tracks, cam, huber_delta=3.0)) == pytest.approx(0.0, abs=1e-20)
+    moved = x.clone()
+    moved[1, 2, 0] += 0.01
+    moved.requires_grad_(True)
+    loss = track_loss(moved, tracks, cam, huber_delta=3.0)
+    loss.backward()
+    assert float(loss.detach()) > 0
+    assert moved.grad[1, 2, 0] > 0 and float(moved.grad[0].abs().sum()) == 0.0
+    # an invalid track contributes nothing
+    tracks.valid[1, 2] = False
+    assert float(track_loss(moved.detach(), tracks, cam, huber_delta=3.0)) == pytest.approx(0.0, abs=1e-20)
+
+
+def test_huber_counts_far_residuals_linearly():
+    cam = _camera()
+    x = torch.zeros(1, 1, 3, dtype=torch.float64)
+    uv, _ = project(x, cam)
+    losses = []
+    for d in (10.0, 20.0):
+        tracks = VertexTracks(points=uv + torch.tensor([d, 0.0], dtype=torch.float64), valid=torch.ones(1, 1, dtype=torch.bool),
+                              scale=1.0)
+        losses.append(float(track_loss(x, tracks, cam, huber_delta=2.0)))
+    assert losses[1] - losses[0] == pytest.approx(2.0 * 10.0)
+
+
+def test_final_learning_rate_decay_is_a_cosine_to_the_fraction():
+    cfg = ShapeConfig(final_epochs=5, final_lr_fraction=0.1)
+    assert lr_factor(3, 10, cfg) == 1.0
+    assert lr_factor(10, 10, cfg) == pytest.approx(1.0)
+    assert lr_factor(12, 10, cfg) == pytest.approx(0.55)
+    assert lr_factor(14, 10, cfg) == pytest.approx(0.1)
+    assert lr_factor(14, 10, ShapeConfig(final_epochs=5)) == 1.0
+    p = torch.zeros(2, requires_grad=True)
+    opt = ClippedAdam([ParamSpec("p", p, 0.2)])
+    opt.set_lr_factor(0.5)
+    assert opt.optims["p"].param_groups[0]["lr"] == pytest.approx(0.1)
+
+
+def test_autoclip_of_the_reference_uses_earlier_norms_only():
+    p = torch.zeros(1, requires_grad=True)
+    opt = ClippedAdam([ParamSpec("p", p, 0.1)], clip=1e3, quantile=0.75, history=2, include_current=False)
+    for g in (1.0, 2.0, 8.0):
+        p.grad = torch.tensor([g])
+        opt.step()
+    assert opt.history["p"] == [2.0, 8.0]          # the last 2 norms, unclipped values recorded
+    p.grad = torch.tensor([100.0])
+    opt.step()
+    assert float(p.grad) == pytest.approx(np.quantile([2.0, 8.0], 0.75))  # clipped by the earlier norms only
