@@ -9,7 +9,7 @@ from saft.reconstruct.optim import ClippedAdam, ParamSpec
 from saft.reconstruct.shape_phase import lr_factor
 from saft.reconstruct.tracks import VertexTracks, bilinear_sample, project, track_loss, track_points
 from saft.scene.camera import look_at
-from saft.scene.synthetic import procedural_texture
+from saft.synthetic import procedural_texture
 
 
 def _smooth_texture(size: int, seed: int = 0) -> np.ndarray:
@@ -117,3 +117,21 @@ def test_autoclip_of_the_reference_uses_earlier_norms_only():
     p.grad = torch.tensor([100.0])
     opt.step()
     assert float(p.grad) == pytest.approx(np.quantile([2.0, 8.0], 0.75))  # clipped by the earlier norms only
+
+
+def test_a_window_from_stored_states_continues_the_full_simulation():
+    from saft.reconstruct.config import PhysicsConfig
+    from saft.reconstruct.shape_phase import ShapeSimulator, new_shape_state
+    from saft.synthetic import grid_template
+
+    mesh = grid_template(5, 0.3)
+    template = torch.tensor(mesh.vertices)
+    sim = ShapeSimulator(template, mesh.quads, PhysicsConfig(), 0.02, np.arange(5))
+    state = new_shape_state(7, len(template), np.array([0.0, -9.81, 0.0]), PhysicsConfig(), ShapeConfig(), "cpu")
+    with torch.no_grad():
+        state.params.vertex_accel.normal_(0.0, 2.0, generator=torch.Generator().manual_seed(0))
+        full = sim.simulate(state.params, 7)
+        x, v = sim.simulate_from(state.params, 0, 7)
+        assert torch.allclose(x, full, atol=1e-9)
+        x3, _ = sim.simulate_from(state.params, 3, 7, x[3], v[3])
+    assert torch.allclose(x3, full[3:], atol=1e-8)

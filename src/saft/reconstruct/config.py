@@ -73,6 +73,11 @@ class ShapeConfig:
     initial_epochs: int = 0               # epochs on the initial frames (0 = add_frame_every)
     add_frame_every: int = 5              # one more frame every 5 epochs
     final_epochs: int = 15                # then this many epochs with all frames
+    # Windowed epochs (0 = off: every epoch simulates from the template, as the paper): while frames are
+    # added, simulate only the newest `window` frames from the stored state before them, with a full pass
+    # every `full_pass_every` epochs; the work per added frame is then bounded (long videos).
+    window: int = 0
+    full_pass_every: int = 25
     lambda_image: float = 1.0
     lambda_sil: float = 0.2
     lambda_energy: float = 2.0            # R_E, stiffnesses detached

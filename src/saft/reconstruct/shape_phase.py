@@ -46,14 +46,34 @@ class ShapeParams:
 
 
 @dataclass
+class FrameStates:
+    """Detached positions and velocities at every frame boundary of the latest simulation that reached
+    them: the start states of windowed epochs (shape.window > 0)."""
+
+    x: torch.Tensor                # (N, V, 3)
+    v: torch.Tensor                # (N, V, 3)
+    frames: int = 1                # frames 0..frames-1 hold states
+
+    def update(self, start: int, x: torch.Tensor, v: torch.Tensor) -> None:
+        n = x.shape[0]
+        self.x[start:start + n] = x.detach()
+        self.v[start:start + n] = v.detach()
+        self.frames = max(self.frames, start + n)
+
+
+@dataclass
 class ShapeState:
     params: ShapeParams
     optimizer: ClippedAdam
     epoch: int = 0
+    states: FrameStates | None = None
 
     def state_dict(self) -> dict:
-        return {"params": {k: v.detach().cpu() for k, v in self.params.tensors().items()},
-                "optimizer": self.optimizer.state_dict(), "epoch": self.epoch}
+        saved = {"params": {k: v.detach().cpu() for k, v in self.params.tensors().items()},
+                 "optimizer": self.optimizer.state_dict(), "epoch": self.epoch}
+        if self.states is not None:
+            saved["frame_states"] = {"x": self.states.x.cpu(), "v": self.states.v.cpu(), "frames": self.states.frames}
+        return saved
 
 
 def _make_optimizer(params: ShapeParams, cfg: ShapeConfig) -> ClippedAdam:
@@ -93,6 +113,9 @@ def restore_shape_state(saved: dict, cfg: ShapeConfig, device) -> ShapeState:
     params = ShapeParams(**p)
     state = ShapeState(params, _make_optimizer(params, cfg), saved["epoch"])
     state.optimizer.load_state_dict(saved["optimizer"])
+    if "frame_states" in saved:
+        fs = saved["frame_states"]
+        state.states = FrameStates(fs["x"].to(device), fs["v"].to(device), int(fs["frames"]))
     return state
 
 
@@ -110,13 +133,33 @@ class ShapeSimulator:
 
     def simulate(self, params: ShapeParams, num_frames: int) -> torch.Tensor:
         """(num_frames, V, 3) positions, frame 0 = template."""
+        return rollout(self.topology, self.template, None, self._physics(params, params.vertex_accel[: num_frames - 1]),
+                       num_frames=num_frames, substeps=self.phys.substeps, frame_dt=self.frame_dt,
+                       pinned=self.pinned, hessian=self.phys.hessian)
+
+    def simulate_from(self, params: ShapeParams, start: int, num_frames: int, x0: torch.Tensor | None = None,
+                      v0: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Frames start..num_frames-1 from the state (x0, v0) at frame `start` (None: the template at rest):
+        positions and velocities at each frame boundary, (num_frames - start, V, 3) each.
+
+        The rollout is asked for every substep as a frame of its own (the same steps as simulate()), so
+        that the velocity at a frame boundary is exact: v = (x_k − x_k⁻) / h.
+        """
+        S = self.phys.substeps
+        n = num_frames - start
+        x0 = self.template if x0 is None else x0
+        v0 = torch.zeros_like(x0) if v0 is None else v0
+        a_sub = params.vertex_accel[start: num_frames - 1].repeat_interleave(S, dim=0)
+        pos = rollout(self.topology, x0, v0, self._physics(params, a_sub), num_frames=(n - 1) * S + 1, substeps=1,
+                      frame_dt=self.frame_dt / S, pinned=self.pinned, hessian=self.phys.hessian)
+        x = pos[::S]
+        v = torch.cat([v0[None], (pos[S::S] - pos[S - 1::S]) / (self.frame_dt / S)], dim=0)
+        return x, v
+
+    def _physics(self, params: ShapeParams, a_vert: torch.Tensor):
         damping = torch.tensor(self.phys.damping, dtype=self.template.dtype, device=self.template.device)
-        physics = PhysicsParams(log10_Y=params.log10_Y, log10_B=params.log10_B, log10_S=params.log10_S,
-                                damping=damping, a_const=params.const_accel,
-                                a_vert=params.vertex_accel[: num_frames - 1])
-        return rollout(self.topology, self.template, None, physics, num_frames=num_frames,
-                       substeps=self.phys.substeps, frame_dt=self.frame_dt, pinned=self.pinned,
-                       hessian=self.phys.hessian)
+        return PhysicsParams(log10_Y=params.log10_Y, log10_B=params.log10_B, log10_S=params.log10_S,
+                             damping=damping, a_const=params.const_accel, a_vert=a_vert)
 
     def energy(self, positions: torch.Tensor, params: ShapeParams) -> torch.Tensor:
         """Deformation energy of each frame (F,), stiffnesses detached (for R_E)."""
@@ -124,25 +167,50 @@ class ShapeSimulator:
                                   params.log10_S.detach())
 
 
+def simulate_epoch(sim: ShapeSimulator, state: ShapeState, frames: int, start: int) -> torch.Tensor:
+    """Positions of frames start..frames-1 with graph; windowed runs also refresh the stored states."""
+    if state.states is None:
+        return sim.simulate(state.params, frames)
+    st = state.states
+    x0, v0 = (st.x[start], st.v[start]) if start > 0 else (None, None)
+    x, v = sim.simulate_from(state.params, start, frames, x0, v0)
+    st.update(start, x, v)
+    return x
+
+
+def window_start(frames: int, epoch: int, first_final: int, states: FrameStates | None, cfg: ShapeConfig) -> int:
+    """First frame simulated in this epoch: 0 (from the template) unless windowed, past the window, not a
+    full-pass epoch, not in the final all-frame epochs, and the start state is known."""
+    if states is None or cfg.window <= 0 or epoch >= first_final:
+        return 0
+    if cfg.full_pass_every > 0 and epoch % cfg.full_pass_every == 0:
+        return 0
+    start = frames - 1 - cfg.window
+    return start if 0 < start < states.frames else 0
+
+
 def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, cfg: ShapeConfig,
-                        texture: torch.Tensor, frames: int, tracks: VertexTracks | None = None) -> dict[str, float]:
-    """Forward + backward of one epoch; leaves the gradients in the parameters. Returns the loss terms."""
+                        texture: torch.Tensor, frames: int, tracks: VertexTracks | None = None,
+                        start: int = 0) -> dict[str, float]:
+    """Forward + backward of one epoch over frames start..frames-1 (start > 0: a window from a stored,
+    detached state); leaves the gradients in the parameters. Returns the loss terms."""
     params = state.params
-    positions = sim.simulate(params, frames)                      # (F, V, 3) float64, with graph
+    positions = simulate_epoch(sim, state, frames, start)         # (F - start, V, 3) float64, with graph
     pos_leaf = positions.detach().to(torch.float32).requires_grad_(True)
+    n_win = frames - start
 
     # Render in chunks: each chunk's graph is freed after its backward into pos_leaf.
     sums = {"image": 0.0, "silhouette": 0.0}
-    for start in range(0, frames, RENDER_CHUNK):
-        stop = min(frames, start + RENDER_CHUNK)
-        out = ctx.render(pos_leaf[start:stop], texture)
+    for lo in range(0, n_win, RENDER_CHUNK):
+        hi = min(n_win, lo + RENDER_CHUNK)
+        out = ctx.render(pos_leaf[lo:hi], texture)
         rgb, mask = out.rgb, out.mask
         if cfg.hard_coverage:
             covered = (out.rast[..., 3] > 0).to(rgb.dtype)
             rgb, mask = rgb * covered.unsqueeze(-1), mask * covered
-        n = stop - start
-        l_img = image_loss(rgb, ctx.target_rgb[start:stop]) * (n / frames)
-        l_sil = silhouette_loss(mask, ctx.target_mask[start:stop]) * (n / frames)
+        n = hi - lo
+        l_img = image_loss(rgb, ctx.target_rgb[start + lo:start + hi]) * (n / n_win)
+        l_sil = silhouette_loss(mask, ctx.target_mask[start + lo:start + hi]) * (n / n_win)
         chunk = cfg.lambda_image * l_img + cfg.lambda_sil * l_sil
         if chunk.requires_grad:
             chunk.backward()
@@ -152,15 +220,15 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
     # Regularizers on the physics side (float64).
     energy = sim.energy(positions, params).mean()
     cam_center = torch.as_tensor(ctx.camera.center, dtype=positions.dtype, device=positions.device)
-    if frames > 1:
-        accel = params.vertex_accel[: frames - 1]
+    if n_win > 1:
+        accel = params.vertex_accel[start: frames - 1]
         if cfg.force_target == "total":
             accel = accel + params.const_accel
-        dir_pos = positions[1:frames] if cfg.force_directions == "current" else sim.template.expand(frames - 1, -1, -1)
+        dir_pos = positions[1:] if cfg.force_directions == "current" else sim.template.expand(n_win - 1, -1, -1)
         force = force_regularizer(accel, dir_pos, cam_center)
     else:
         force = torch.zeros((), dtype=positions.dtype, device=positions.device)
-    track = (track_loss(positions, tracks, ctx.camera, cfg.track_huber) if tracks is not None
+    track = (track_loss(positions, tracks, ctx.camera, cfg.track_huber, first_frame=start) if tracks is not None
              else torch.zeros((), dtype=positions.dtype, device=positions.device))
     reg = cfg.lambda_energy * energy + cfg.lambda_force * force + cfg.lambda_track * track
     grad_pos = pos_leaf.grad.to(positions.dtype) if pos_leaf.grad is not None else torch.zeros_like(positions)
@@ -204,6 +272,10 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
     ranges = {"log10_Y": phys.log10_Y_range, "log10_B": phys.log10_B_range, "log10_S": phys.log10_S_range}
     tracks = shape_tracks(ctx, cfg, texture)
     first_final = len(schedule) - cfg.final_epochs
+    if cfg.window > 0 and state.states is None:
+        zeros = ctx.template_positions.new_zeros((n_frames,) + tuple(ctx.template_positions.shape))
+        state.states = FrameStates(zeros.clone(), zeros.clone(), 1)
+        state.states.x[0] = ctx.template_positions
     ctx.progress.start_phase("shape", len(schedule), state.epoch)
     while state.epoch < len(schedule):
         t0 = time.perf_counter()
@@ -219,7 +291,8 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
                 params.vertex_accel -= params.vertex_accel.mean(dim=(0, 1), keepdim=True)
         state.optimizer.set_lr_factor(lr_factor(state.epoch, first_final, cfg))
         state.optimizer.zero_grad()
-        terms = epoch_loss_and_grad(ctx, sim, state, cfg, texture, frames, tracks)
+        start = window_start(frames, state.epoch, first_final, state.states, cfg)
+        terms = epoch_loss_and_grad(ctx, sim, state, cfg, texture, frames, tracks, start)
         state.optimizer.step()
         with torch.no_grad():
             for name, (lo, hi) in ranges.items():

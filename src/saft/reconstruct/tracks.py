@@ -136,16 +136,18 @@ def compute_vertex_tracks(rgb: torch.Tensor, mask: torch.Tensor, template: torch
                         scale=float(max(camera.width, camera.height)))
 
 
-def track_loss(positions: torch.Tensor, tracks: VertexTracks, camera: Camera, huber_delta: float) -> torch.Tensor:
-    """L_track of simulated frames 0..F-1 (positions (F, V, 3)); zero when no track is valid.
+def track_loss(positions: torch.Tensor, tracks: VertexTracks, camera: Camera, huber_delta: float,
+               first_frame: int = 0) -> torch.Tensor:
+    """L_track of simulated frames first_frame..first_frame+F-1 (positions (F, V, 3)); zero when no track
+    is valid there.
 
     huber_delta in pixels: residuals beyond it count linearly (a track that went astray pulls less)."""
-    F = positions.shape[0]
-    valid = tracks.valid[:F]
+    frames = slice(first_frame, first_frame + positions.shape[0])
+    valid = tracks.valid[frames]
     if not bool(valid.any()):
         return positions.sum() * 0.0
     uv, _ = project(positions, camera)
-    r = (uv - tracks.points[:F].to(uv)).norm(dim=-1) / tracks.scale
+    r = (uv - tracks.points[frames].to(uv)).norm(dim=-1) / tracks.scale
     d = huber_delta / tracks.scale
     h = torch.where(r <= d, 0.5 * r * r, d * (r - 0.5 * d))
     return h[valid].mean()
