@@ -172,7 +172,8 @@ def simulate_epoch(sim: ShapeSimulator, state: ShapeState, frames: int, start: i
     if state.states is None:
         return sim.simulate(state.params, frames)
     st = state.states
-    x0, v0 = (st.x[start], st.v[start]) if start > 0 else (None, None)
+    # clones: the rollout keeps its start state for the backward, and update() writes into the store
+    x0, v0 = (st.x[start].clone(), st.v[start].clone()) if start > 0 else (None, None)
     x, v = sim.simulate_from(state.params, start, frames, x0, v0)
     st.update(start, x, v)
     return x
