@@ -86,9 +86,10 @@ class ShapeConfig:
     # What R_F penalises: "vertex" = the per-vertex accelerations D_f alone; "total" = C + D_f, the total
     # external acceleration (the paper's supplement and the reference's code).
     force_target: Literal["vertex", "total"] = "vertex"
-    # Point tracks (saft.reconstruct.tracks): λ of the track loss (0 = off), the forward-backward check
-    # in pixels, and the Huber threshold in pixels beyond which a residual counts linearly.
-    lambda_track: float = 0.0
+    # Point tracks (saft.reconstruct.tracks; not in the paper): λ of the track loss (0 = off, the paper),
+    # the forward-backward check in pixels, and the Huber threshold in pixels beyond which a residual
+    # counts linearly. On by default: measured on R1's first 25 frames, mean CD2 0.66 against 1.4–1.6.
+    lambda_track: float = 2e3
     track_fb_threshold: float = 1.0
     track_huber: float = 3.0
     # After antialias, multiply the rendered RGB and coverage by the hard coverage (the reference): only
