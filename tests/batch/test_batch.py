@@ -99,8 +99,10 @@ def _dummy(tmp_path: Path, name: str) -> Path:
 
 def _batch(args: list[str]) -> subprocess.CompletedProcess:
     env = {**os.environ, "PYTHONPATH": str(REPO / "src"), "RAY_USAGE_STATS_ENABLED": "0"}
+    # Generous: Ray's start-up and three tiny runs take about a minute on a quiet 2-core machine, several
+    # times that when other jobs share the cores.
     return subprocess.run([sys.executable, "-m", "saft", "batch", *args], env=env, capture_output=True, text=True,
-                          timeout=300)
+                          timeout=1200)
 
 
 def _read_csv(path: Path) -> dict[tuple[str, str], dict]:
