@@ -4,7 +4,7 @@
                                       [--device cpu] [--set key=value ...]
                                       [--grid N] [--frames N] [--image-size PX] [--spp N]
 
-The scenes (saft.synthetic_scenes: a cloth hanging in wind, a cloth held at two corners swinging, a corner
+The scenes (saft.synthetic.benchmark_scenes: a cloth hanging in wind, a cloth held at two corners swinging, a corner
 grabbed and folded towards the camera; each with and without pinned vertices) are generated into
 --scenes-dir (default /tmp/saft-bench-scenes) when missing or made with other sizes. Each is reconstructed
 by `saft.reconstruct.reconstruct` with the default config (shape phases only: `appearance.enabled=false`;
@@ -27,7 +27,7 @@ from saft.io_utils import atomic_write_json
 from saft.reconstruct import reconstruct
 from saft.reconstruct.config import load_saft_config
 from saft.scene import load_scene
-from saft.synthetic_scenes import SCENARIOS, BenchSceneSpec, scene_names, write_benchmark_scenes
+from saft.synthetic.benchmark_scenes import SCENARIOS, BenchSceneSpec, scene_names, write_benchmark_scenes
 
 
 def run_scene(folder: Path, out: Path, device: str, extra: list[str]) -> dict:

@@ -1,4 +1,4 @@
-"""The benchmark scenes (saft.synthetic_scenes), made tiny: they load, start at the template and move."""
+"""The benchmark scenes (saft.synthetic.benchmark_scenes), made tiny: they load, start at the template and move."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 from saft.evaluate import ground_truth_spec_for, load_ground_truth_frames
 from saft.io_utils import read_image
 from saft.scene import load_scene
-from saft.synthetic_scenes import BenchSceneSpec, is_complete, scene_names, write_benchmark_scenes
+from saft.synthetic.benchmark_scenes import BenchSceneSpec, is_complete, scene_names, write_benchmark_scenes
 
 TINY = BenchSceneSpec(grid=6, frames=4, frame_dt=0.06, image_size=48, spp=4, texture_size=64, gt_points=300)
 
