@@ -88,8 +88,9 @@ class ShapeConfig:
     force_target: Literal["vertex", "total"] = "vertex"
     # Point tracks (saft.reconstruct.tracks; not in the paper): λ of the track loss (0 = off, the paper),
     # the forward-backward check in pixels, and the Huber threshold in pixels beyond which a residual
-    # counts linearly. On by default: measured on R1's first 25 frames, mean CD2 0.66 against 1.4–1.6.
-    lambda_track: float = 2e3
+    # counts linearly. Off by default: with λ = 2e3, R1's first 25 frames improve (mean CD2 0.66 against
+    # 1.46) but the full 50 frames diverge (35–40), see BENCHMARKS.md.
+    lambda_track: float = 0.0
     track_fb_threshold: float = 1.0
     track_huber: float = 3.0
     # After antialias, multiply the rendered RGB and coverage by the hard coverage (the reference): only
