@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from scipy.ndimage import map_coordinates
 
 from saft.scene.camera import Camera
 
@@ -45,18 +46,11 @@ def to_gray_u8(rgb: np.ndarray) -> np.ndarray:
 
 def bilinear_sample(image: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Sample an (H, W) or (H, W, C) array at float pixel positions (P, 2) = (u, v); clamped at the border."""
-    H, W = image.shape[:2]
-    u = np.clip(points[:, 0], 0, W - 1)
-    v = np.clip(points[:, 1], 0, H - 1)
-    u0 = np.clip(np.floor(u).astype(np.int64), 0, W - 2) if W > 1 else np.zeros_like(u, dtype=np.int64)
-    v0 = np.clip(np.floor(v).astype(np.int64), 0, H - 2) if H > 1 else np.zeros_like(v, dtype=np.int64)
-    du, dv = u - u0, v - v0
-    u1, v1 = np.minimum(u0 + 1, W - 1), np.minimum(v0 + 1, H - 1)
-    if image.ndim == 3:
-        du, dv = du[:, None], dv[:, None]
-    top = image[v0, u0] * (1 - du) + image[v0, u1] * du
-    bottom = image[v1, u0] * (1 - du) + image[v1, u1] * du
-    return top * (1 - dv) + bottom * dv
+    coords = points[:, ::-1].T                                     # (row, column) for map_coordinates
+    if image.ndim == 2:
+        return map_coordinates(image, coords, order=1, mode="nearest")
+    return np.stack([map_coordinates(image[..., c], coords, order=1, mode="nearest")
+                     for c in range(image.shape[2])], axis=1)
 
 
 def dense_flow(gray0: np.ndarray, gray1: np.ndarray) -> np.ndarray:
@@ -79,6 +73,7 @@ def track_points(rgb: np.ndarray, mask: np.ndarray, start: np.ndarray, start_val
     points = np.zeros((n, len(start), 2), dtype=np.float64)
     valid = np.zeros((n, len(start)), dtype=bool)
     points[0], valid[0] = start, start_valid
+    H, W = mask.shape[1:]
     gray_prev = to_gray_u8(rgb[0])
     for t in range(1, n):
         gray = to_gray_u8(rgb[t])
@@ -87,7 +82,6 @@ def track_points(rgb: np.ndarray, mask: np.ndarray, start: np.ndarray, start_val
         p = points[t - 1] + bilinear_sample(fwd, points[t - 1])
         back = p + bilinear_sample(bwd, p)
         ok = valid[t - 1] & (np.linalg.norm(back - points[t - 1], axis=1) <= fb_threshold)
-        H, W = mask.shape[1:]
         inside = (p[:, 0] >= 0) & (p[:, 0] <= W - 1) & (p[:, 1] >= 0) & (p[:, 1] <= H - 1)
         ok &= inside & (bilinear_sample(mask[t], p) >= 0.5)
         points[t] = np.where(ok[:, None], p, points[t - 1])
