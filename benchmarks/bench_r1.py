@@ -1,7 +1,7 @@
 """Accuracy and wall time of the default reconstruction on the real scene R1 (and its ablations).
 
     python benchmarks/bench_r1.py [--ablation full|no_re|no_rf|neither|no_sil|fixed_stiffness ...]
-                                  [--out DIR] [--device cpu] [--frames N] [--repeats K] [--set key=value ...]
+                                  [--out DIR] [--device cpu] [--frames N] [--repeats K] [--first-repeat K0] [--set key=value ...]
 
 Runs `saft reconstruct ../shared/data/phi_sft/data/scenes/R1.json` (shape phases only: the appearance
 phase is benchmarked by bench_appearance.py) and evaluates it against R1's ground truth. `--frames N`
@@ -87,13 +87,15 @@ def main() -> None:
     p.add_argument("--device", default="cpu")
     p.add_argument("--frames", type=int, default=None, help="only the first N frames (quick experiments)")
     p.add_argument("--repeats", type=int, default=1, help="runs per ablation under perturbations that should not matter")
+    p.add_argument("--first-repeat", type=int, default=0,
+                   help="start at this perturbation (to run the repeats of one setting as parallel processes)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     args = p.parse_args()
     if not R1.is_file():
         raise SystemExit(f"R1 not found at {R1} (the shared/ folder beside the repository)")
     medians = []
     for a in args.ablation:
-        rows = [run(a, args.out / a / f"run{k}", args.device, args.set, args.frames, k) for k in range(args.repeats)]
+        rows = [run(a, args.out / a / f"run{k}", args.device, args.set, args.frames, k) for k in range(args.first_repeat, args.first_repeat + args.repeats)]
         cd2 = [r["cd2_1e-4m2"] for r in rows]
         medians.append(statistics.median(cd2))
         print(f"{a:16s} median CD2 {medians[-1]:.3f}  min {min(cd2):.3f}  max {max(cd2):.3f}  "
