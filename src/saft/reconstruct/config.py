@@ -108,6 +108,11 @@ class ShapeConfig:
     # Learning rates fall with a cosine over the final all-frame epochs to this fraction (1 = constant,
     # the reference); a constant rate leaves the loss oscillating at the end.
     final_lr_fraction: float = 1.0
+    # Backtracking (saft.reconstruct.step_guard; not in the paper): an epoch whose loss exceeds
+    # backtrack_ratio × the lowest loss with the same frames in use is rolled back to that lowest point and
+    # every learning rate is multiplied by backtrack_decay from then on (0 = off, the paper).
+    backtrack_ratio: float = 0.0
+    backtrack_decay: float = 0.5
     center_vertex_accel: bool = True      # subtract the mean per-vertex acceleration before each epoch
     warm_start_new_frames: bool = True    # a newly added frame starts from the previous frame's accelerations
     # Start of the constant acceleration: "gravity" (the reference), "zero", or "auto" = gravity when the

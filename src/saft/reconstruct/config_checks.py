@@ -45,6 +45,8 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "shape.track_fb_threshold": (0, INF, False),
     "shape.track_huber": (0, INF, False),
     "shape.final_lr_fraction": (0, 1, False),
+    "shape.backtrack_ratio": (0, INF, True),
+    "shape.backtrack_decay": (0, 1, False),
     "shape.window": (0, INF, True),
     "shape.full_pass_every": (0, INF, True),
     "appearance.epochs": (1, 1_000_000, True),

@@ -13,7 +13,7 @@ from saft.io_utils import atomic_write_text
 log = logging.getLogger("saft")
 
 LOG_FIELDS = ["phase", "epoch", "frames", "loss", "image", "silhouette", "energy", "force", "track", "smooth",
-              "env_l1", "env_smooth", "seconds"]
+              "env_l1", "env_smooth", "lr_factor", "backtracks", "seconds"]
 
 
 class Progress:

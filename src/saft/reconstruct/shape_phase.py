@@ -26,6 +26,7 @@ from saft.reconstruct.config import PhysicsConfig, ShapeConfig, shape_schedule
 from saft.reconstruct.context import PhaseContext
 from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_loss
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
+from saft.reconstruct.step_guard import StepGuard
 from saft.reconstruct.tracks import VertexTracks, compute_vertex_tracks, track_loss
 
 # Frames rendered per batch inside an epoch; the physics graph is kept, the render graphs are not.
@@ -65,12 +66,13 @@ class FrameStates:
 class ShapeState:
     params: ShapeParams
     optimizer: ClippedAdam
+    guard: StepGuard
     epoch: int = 0
     states: FrameStates | None = None
 
     def state_dict(self) -> dict:
         saved = {"params": {k: v.detach().cpu() for k, v in self.params.tensors().items()},
-                 "optimizer": self.optimizer.state_dict(), "epoch": self.epoch}
+                 "optimizer": self.optimizer.state_dict(), "epoch": self.epoch, "guard": self.guard.state_dict()}
         if self.states is not None:
             saved["frame_states"] = {"x": self.states.x.cpu(), "v": self.states.v.cpu(), "frames": self.states.frames}
         return saved
@@ -83,6 +85,10 @@ def _make_optimizer(params: ShapeParams, cfg: ShapeConfig) -> ClippedAdam:
         specs += [ParamSpec(n, getattr(params, n), cfg.lr_stiffness) for n in ("log10_Y", "log10_B", "log10_S")]
     return ClippedAdam(specs, clip=cfg.grad_clip, quantile=cfg.autoclip_quantile, history=cfg.autoclip_history,
                        include_current=cfg.autoclip_include_current)
+
+
+def _make_guard(cfg: ShapeConfig) -> StepGuard:
+    return StepGuard(ratio=cfg.backtrack_ratio, decay=cfg.backtrack_decay)
 
 
 def initial_const_accel(gravity: np.ndarray, pinned, cfg: ShapeConfig) -> np.ndarray:
@@ -104,15 +110,16 @@ def new_shape_state(num_frames: int, num_vertices: int, gravity: np.ndarray, phy
         vertex_accel=torch.zeros(max(num_frames - 1, 0), num_vertices, 3, dtype=dtype, device=device,
                                  requires_grad=True),
     )
-    return ShapeState(params, _make_optimizer(params, cfg))
+    return ShapeState(params, _make_optimizer(params, cfg), _make_guard(cfg))
 
 
 def restore_shape_state(saved: dict, cfg: ShapeConfig, device) -> ShapeState:
     p = {k: v.to(device).requires_grad_(k in ("const_accel", "vertex_accel") or cfg.optimize_stiffness)
          for k, v in saved["params"].items()}
     params = ShapeParams(**p)
-    state = ShapeState(params, _make_optimizer(params, cfg), saved["epoch"])
+    state = ShapeState(params, _make_optimizer(params, cfg), _make_guard(cfg), saved["epoch"])
     state.optimizer.load_state_dict(saved["optimizer"])
+    state.guard.load_state_dict(saved.get("guard", {}))
     if "frame_states" in saved:
         fs = saved["frame_states"]
         state.states = FrameStates(fs["x"].to(device), fs["v"].to(device), int(fs["frames"]))
@@ -290,16 +297,20 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
         if cfg.center_vertex_accel and params.vertex_accel.numel():
             with torch.no_grad():
                 params.vertex_accel -= params.vertex_accel.mean(dim=(0, 1), keepdim=True)
-        state.optimizer.set_lr_factor(lr_factor(state.epoch, first_final, cfg))
         state.optimizer.zero_grad()
         start = window_start(frames, state.epoch, first_final, state.states, cfg)
         terms = epoch_loss_and_grad(ctx, sim, state, cfg, texture, frames, tracks, start)
+        if start == 0:   # a window's loss covers other frames: not comparable
+            state.guard.check(frames, terms["loss"], params.tensors(), state.optimizer)
+        lr = lr_factor(state.epoch, first_final, cfg) * state.guard.lr_scale
+        state.optimizer.set_lr_factor(lr)
         state.optimizer.step()
         with torch.no_grad():
             for name, (lo, hi) in ranges.items():
                 getattr(params, name).clamp_(lo, hi)
         state.epoch += 1
-        ctx.log.add(phase="shape", epoch=state.epoch - 1, frames=frames, seconds=time.perf_counter() - t0, **terms)
+        ctx.log.add(phase="shape", epoch=state.epoch - 1, frames=frames, seconds=time.perf_counter() - t0,
+                    lr_factor=lr, backtracks=state.guard.backtracks, **terms)
         ctx.progress.update(state.epoch - 1, frames, terms["loss"])
         ctx.epoch_done("shape", state.epoch, state.state_dict)
     ctx.progress.end_phase()
