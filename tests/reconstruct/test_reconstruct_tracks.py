@@ -153,3 +153,38 @@ def test_windowed_epochs_run_and_keep_gradients(tmp_path):
     reconstruct(scene, cfg, tmp_path / "out", quiet=True)
     r = read_result(tmp_path / "out")
     assert r.num_frames == 7 and np.isfinite(r.vertices).all()
+
+
+def test_vertices_behind_another_layer_of_cloth_are_hidden():
+    from saft.render import get_rasterizer
+    from saft.render.cloth import render_cloth
+    from saft.reconstruct.tracks import hidden_vertices
+
+    cam = _camera()
+    g = np.linspace(-0.15, 0.15, 6)
+    xx, yy = np.meshgrid(g, g)
+    front = np.stack([xx.ravel(), yy.ravel(), np.full(36, 0.05)], 1)
+    back = front * [0.8, 0.8, 1.0] - [0.0, 0.0, 0.15]              # a smaller layer 15 cm behind
+    verts = torch.as_tensor(np.concatenate([front, back]), dtype=torch.float64)
+    quads = [(r * 6 + c, r * 6 + c + 1, r * 6 + c + 7, r * 6 + c + 6) for r in range(5) for c in range(5)]
+    tris = np.array([t for q in quads for t in ((q[0], q[1], q[2]), (q[0], q[2], q[3]))])
+    tris = np.concatenate([tris, tris + 36])
+    uvs = torch.zeros(72, 2)
+    depth = render_cloth(verts[None].float(), tris, uvs, torch.ones(4, 4, 3), cam,
+                         rasterizer=get_rasterizer("torch")).depth
+    hidden = hidden_vertices(verts[None], depth, cam, tolerance=0.03)[0]
+    assert not hidden[:36].any()           # the front layer is what the camera sees
+    assert hidden[36:].all()               # every vertex of the back layer lies behind it
+    assert not hidden_vertices(verts[None], depth, cam, tolerance=0.5)[0].any()
+
+
+def test_hidden_tracks_do_not_count():
+    cam = _camera()
+    pos = torch.zeros(1, 2, 3, dtype=torch.float64)
+    uv, _ = project(pos, cam)
+    pts = uv.clone()
+    pts[0, 1] += 10.0                       # vertex 1's track is 10 px off
+    tr = VertexTracks(points=pts, valid=torch.ones(1, 2, dtype=torch.bool), scale=64.0)
+    assert float(track_loss(pos, tr, cam, 3.0)) > 0
+    hidden = torch.tensor([[False, True]])
+    assert float(track_loss(pos, tr, cam, 3.0, hidden=hidden)) == pytest.approx(0.0, abs=1e-15)

@@ -93,6 +93,9 @@ class ShapeConfig:
     lambda_track: float = 0.0
     track_fb_threshold: float = 1.0
     track_huber: float = 3.0
+    # Skip a track where the current reconstruction hides its vertex behind another part of the cloth by
+    # more than the mean edge length (a fold the flow's forward-backward check let through).
+    track_occlusion: bool = True
     # After antialias, multiply the rendered RGB and coverage by the hard coverage (the reference): only
     # the silhouette gradients that land on covered pixels survive.
     hard_coverage: bool = False

@@ -27,7 +27,7 @@ from saft.reconstruct.context import PhaseContext
 from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_loss
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
 from saft.reconstruct.step_guard import StepGuard
-from saft.reconstruct.tracks import VertexTracks, compute_vertex_tracks, track_loss
+from saft.reconstruct.tracks import VertexTracks, compute_vertex_tracks, hidden_vertices, track_loss
 
 # Frames rendered per batch inside an epoch; the physics graph is kept, the render graphs are not.
 RENDER_CHUNK = 8
@@ -137,6 +137,7 @@ class ShapeSimulator:
         self.topology = ClothTopology.from_quads(template.detach().cpu().numpy(), quads, density=phys.density,
                                                  device=template.device, dtype=template.dtype)
         self.pinned = None if pinned is None or len(pinned) == 0 else torch.as_tensor(pinned, device=template.device)
+        self.mean_edge_length = float(self.topology.rest_len.mean())
 
     def simulate(self, params: ShapeParams, num_frames: int) -> torch.Tensor:
         """(num_frames, V, 3) positions, frame 0 = template."""
@@ -209,9 +210,12 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
 
     # Render in chunks: each chunk's graph is freed after its backward into pos_leaf.
     sums = {"image": 0.0, "silhouette": 0.0}
+    depths = []
     for lo in range(0, n_win, RENDER_CHUNK):
         hi = min(n_win, lo + RENDER_CHUNK)
         out = ctx.render(pos_leaf[lo:hi], texture)
+        if tracks is not None and cfg.track_occlusion:
+            depths.append(out.depth.detach())
         rgb, mask = out.rgb, out.mask
         if cfg.hard_coverage:
             covered = (out.rast[..., 3] > 0).to(rgb.dtype)
@@ -236,8 +240,12 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
         force = force_regularizer(accel, dir_pos, cam_center)
     else:
         force = torch.zeros((), dtype=positions.dtype, device=positions.device)
-    track = (track_loss(positions, tracks, ctx.camera, cfg.track_huber, first_frame=start) if tracks is not None
-             else torch.zeros((), dtype=positions.dtype, device=positions.device))
+    if tracks is not None:
+        hidden = (hidden_vertices(positions, torch.cat(depths), ctx.camera, sim.mean_edge_length) if depths
+                  else None)
+        track = track_loss(positions, tracks, ctx.camera, cfg.track_huber, first_frame=start, hidden=hidden)
+    else:
+        track = torch.zeros((), dtype=positions.dtype, device=positions.device)
     reg = cfg.lambda_energy * energy + cfg.lambda_force * force + cfg.lambda_track * track
     grad_pos = pos_leaf.grad.to(positions.dtype) if pos_leaf.grad is not None else torch.zeros_like(positions)
     torch.autograd.backward([positions, reg], [grad_pos, torch.ones_like(reg)])

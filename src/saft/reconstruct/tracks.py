@@ -130,14 +130,31 @@ def compute_vertex_tracks(rgb: torch.Tensor, mask: torch.Tensor, template: torch
                         scale=float(max(camera.width, camera.height)))
 
 
+def hidden_vertices(positions: torch.Tensor, depth: torch.Tensor, camera: Camera, tolerance: float) -> torch.Tensor:
+    """(F, V) bool: the vertex lies more than `tolerance` behind the rendered surface at its pixel, i.e. the
+    current reconstruction hides it behind another part of the cloth (positions (F, V, 3), depth (F, H, W)
+    rendered camera depth of the same frames, 0 where nothing is drawn)."""
+    with torch.no_grad():
+        uv, z = project(positions.detach(), camera)
+        H, W = depth.shape[1:]
+        cols = uv[..., 0].round().long().clamp(0, W - 1)
+        rows = uv[..., 1].round().long().clamp(0, H - 1)
+        d = torch.gather(depth.reshape(depth.shape[0], -1).to(z.dtype), 1, rows * W + cols)
+        return (d > 0) & (z > d + tolerance)
+
+
 def track_loss(positions: torch.Tensor, tracks: VertexTracks, camera: Camera, huber_delta: float,
-               first_frame: int = 0) -> torch.Tensor:
+               first_frame: int = 0, hidden: torch.Tensor | None = None) -> torch.Tensor:
     """L_track of simulated frames first_frame..first_frame+F-1 (positions (F, V, 3)); zero when no track
     is valid there.
 
-    huber_delta in pixels: residuals beyond it count linearly (a track that went astray pulls less)."""
+    huber_delta in pixels: residuals beyond it count linearly (a track that went astray pulls less).
+    hidden (F, V) bool: vertices the reconstruction itself hides (hidden_vertices); their tracks are
+    skipped in these frames (a track that survived the flow's checks through a fold is wrong there)."""
     frames = slice(first_frame, first_frame + positions.shape[0])
     valid = tracks.valid[frames]
+    if hidden is not None:
+        valid = valid & ~hidden.to(valid.device)
     if not bool(valid.any()):
         return positions.sum() * 0.0
     uv, _ = project(positions, camera)
@@ -147,5 +164,5 @@ def track_loss(positions: torch.Tensor, tracks: VertexTracks, camera: Camera, hu
     return h[valid].mean()
 
 
-__all__ = ["VertexTracks", "compute_vertex_tracks", "track_loss", "track_points", "project", "visible_vertices",
+__all__ = ["VertexTracks", "compute_vertex_tracks", "track_loss", "hidden_vertices", "track_points", "project", "visible_vertices",
            "dense_flow", "bilinear_sample", "to_gray_u8"]
