@@ -38,6 +38,10 @@ ABLATIONS = {
     "no_sil": ["shape.lambda_sil=0"],
     "fixed_stiffness": ["shape.optimize_stiffness=false"],
     "no_track": ["shape.lambda_track=0"],
+    "no_backtrack": ["shape.backtrack_ratio=0"],
+    "no_final_decay": ["shape.final_lr_fraction=1"],
+    # the paper's optimisation: no tracks, no backtracking, constant learning rates
+    "paper_optim": ["shape.lambda_track=0", "shape.backtrack_ratio=0", "shape.final_lr_fraction=1"],
 }
 
 R1 = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "phi_sft" / "data" / "scenes" / "R1.json"

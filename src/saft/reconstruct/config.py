@@ -88,9 +88,9 @@ class ShapeConfig:
     force_target: Literal["vertex", "total"] = "vertex"
     # Point tracks (saft.reconstruct.tracks; not in the paper): λ of the track loss (0 = off, the paper),
     # the forward-backward check in pixels, and the Huber threshold in pixels beyond which a residual
-    # counts linearly. Off by default: with λ = 2e3, R1's first 25 frames improve (mean CD2 0.66 against
-    # 1.46) but the full 50 frames diverge (35–40), see BENCHMARKS.md.
-    lambda_track: float = 0.0
+    # counts linearly. With the backtracking and the final decay below, R1's mean CD2 falls from 2.6-3.0
+    # to 0.91 (BENCHMARKS.md); without them the full 50 frames diverged.
+    lambda_track: float = 2e3
     track_fb_threshold: float = 1.0
     track_huber: float = 3.0
     # Skip a track where the current reconstruction hides its vertex behind another part of the cloth by
@@ -110,11 +110,11 @@ class ShapeConfig:
     autoclip_include_current: bool = True  # the current norm counts in its own quantile (reference: no)
     # Learning rates fall with a cosine over the final all-frame epochs to this fraction (1 = constant,
     # the reference); a constant rate leaves the loss oscillating at the end.
-    final_lr_fraction: float = 1.0
+    final_lr_fraction: float = 0.1
     # Backtracking (saft.reconstruct.step_guard; not in the paper): an epoch whose loss exceeds
     # backtrack_ratio × the lowest loss with the same frames in use is rolled back to that lowest point and
     # every learning rate is multiplied by backtrack_decay from then on (0 = off, the paper).
-    backtrack_ratio: float = 0.0
+    backtrack_ratio: float = 1.3
     backtrack_decay: float = 0.5
     center_vertex_accel: bool = True      # subtract the mean per-vertex acceleration before each epoch
     warm_start_new_frames: bool = True    # a newly added frame starts from the previous frame's accelerations
