@@ -100,7 +100,7 @@ def test_final_learning_rate_decay_is_a_cosine_to_the_fraction():
     assert lr_factor(10, 10, cfg) == pytest.approx(1.0)
     assert lr_factor(12, 10, cfg) == pytest.approx(0.55)
     assert lr_factor(14, 10, cfg) == pytest.approx(0.1)
-    assert lr_factor(14, 10, ShapeConfig(final_epochs=5)) == 1.0
+    assert lr_factor(14, 10, ShapeConfig(final_epochs=5, final_lr_fraction=1.0)) == 1.0
     p = torch.zeros(2, requires_grad=True)
     opt = ClippedAdam([ParamSpec("p", p, 0.2)])
     opt.set_lr_factor(0.5)

@@ -19,7 +19,7 @@ def _run(guard: StepGuard, epochs: int = 60, lr: float = 2.0) -> tuple[list[floa
         loss = x.abs().sum()
         loss.backward()
         losses.append(float(loss.detach()))
-        guard.check(frames=1, loss=float(loss), tensors={"x": x}, optimizer=opt)
+        guard.check(frames=1, loss=float(loss.detach()), tensors={"x": x}, optimizer=opt)
         opt.set_lr_factor(guard.lr_scale)
         opt.step()
     return losses, guard
