@@ -34,6 +34,23 @@ def test_tracks_follow_a_translating_pattern():
         assert np.abs(pts[t] - (start + [dx, dy])).max() < 0.35
 
 
+def test_reanchoring_to_frame_0_removes_the_drift_of_chained_flow():
+    from scipy.ndimage import shift as nd_shift
+    tex = _smooth_texture(160)
+    shifts = [(0.37 * t, 0.23 * t) for t in range(16)]           # sub-pixel steps: chained flow drifts
+    frames = np.stack([np.stack([nd_shift(tex[..., c], (dy, dx), order=3, mode="wrap") for c in range(3)], -1)
+                       for dx, dy in shifts]).clip(0, 1)
+    mask = np.ones(frames.shape[:3], dtype=np.float32)
+    start = np.random.default_rng(0).uniform(40, 110, (50, 2))
+    err = {}
+    for radius in (0.0, 2.0):
+        pts, valid = track_points(frames, mask, start, np.ones(50, bool), 1.0, reanchor_radius=radius)
+        assert valid[-1].all()
+        err[radius] = np.median(np.linalg.norm(pts[-1] - (start + shifts[-1]), axis=1))
+    assert err[0.0] > 0.5                                          # about 0.9 px after 15 frames
+    assert err[2.0] < 0.2 and err[2.0] < err[0.0] / 4
+
+
 def test_a_track_ends_where_the_flow_is_not_consistent_or_leaves_the_mask():
     rng = np.random.default_rng(0)
     tex = _smooth_texture(128)

@@ -93,6 +93,9 @@ class ShapeConfig:
     lambda_track: float = 2e3
     track_fb_threshold: float = 1.0
     track_huber: float = 3.0
+    # Re-anchoring (pixels; 0 = chained flow only): where a frame's direct flow from frame 0 passes the
+    # forward-backward check within this distance of the chained track, the track takes it (no drift).
+    track_reanchor_radius: float = 2.0
     # Skip a track where the current reconstruction hides its vertex behind another part of the cloth by
     # more than the mean edge length (a fold the flow's forward-backward check let through).
     track_occlusion: bool = True

@@ -10,6 +10,12 @@ every vertex visible in frame 0 starts at its projection and is carried from fra
 forward flow. A track ends for good at the first frame where the backward flow does not bring it back
 (forward–backward check: occlusion, a fold, flow leaving the cloth) or where it leaves the cloth's mask.
 
+Chained flow accumulates error (about a pixel over 30 frames, more where the cloth folds), and a
+drifted track pulls the simulation towards a stretched cloth. So each frame is also matched directly
+to frame 0 (re-anchoring): where the direct flow of the track's start passes its own forward–backward
+check and lands within `reanchor_radius` pixels of the chained position, the track takes the direct
+position, which carries no accumulated drift, and chaining goes on from there.
+
     L_track = mean over valid (frame, vertex) of huber(|π(x_v,t) − p_v,t| / s)
 
 π: the working camera's projection, p: the track, s: the image's larger side in pixels (so the loss is
@@ -61,29 +67,42 @@ def dense_flow(gray0: np.ndarray, gray1: np.ndarray) -> np.ndarray:
     return dis.calc(gray0, gray1, None)
 
 
+def _flow_step(flow_fwd: np.ndarray, flow_bwd: np.ndarray, mask: np.ndarray, src: np.ndarray,
+               fb_threshold: float) -> tuple[np.ndarray, np.ndarray]:
+    """Move points `src` (P, 2) by a forward flow; ok where the backward flow brings them back within
+    fb_threshold pixels and they land inside the image on the mask."""
+    H, W = mask.shape
+    p = src + bilinear_sample(flow_fwd, src)
+    back = p + bilinear_sample(flow_bwd, p)
+    ok = np.linalg.norm(back - src, axis=1) <= fb_threshold
+    inside = (p[:, 0] >= 0) & (p[:, 0] <= W - 1) & (p[:, 1] >= 0) & (p[:, 1] <= H - 1)
+    return p, ok & inside & (bilinear_sample(mask, p) >= 0.5)
+
+
 def track_points(rgb: np.ndarray, mask: np.ndarray, start: np.ndarray, start_valid: np.ndarray,
-                 fb_threshold: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-    """Carry points from frame 0 through the video by chained forward flow.
+                 fb_threshold: float = 1.0, reanchor_radius: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Carry points from frame 0 through the video by chained forward flow, re-anchored to frame 0.
 
     rgb (N, H, W, 3) float sRGB, mask (N, H, W) in [0, 1], start (P, 2) pixel positions in frame 0,
     start_valid (P,) bool. Returns points (N, P, 2) and valid (N, P): a point stays valid while the
     backward flow returns it within `fb_threshold` pixels and it stays on the mask.
+    reanchor_radius > 0: where the direct flow from frame 0 passes the same checks and lands within this
+    many pixels of the chained point, the point takes the direct position (0 = chained flow only).
     """
     n = rgb.shape[0]
     points = np.zeros((n, len(start), 2), dtype=np.float64)
     valid = np.zeros((n, len(start)), dtype=bool)
     points[0], valid[0] = start, start_valid
-    H, W = mask.shape[1:]
-    gray_prev = to_gray_u8(rgb[0])
+    gray0 = gray_prev = to_gray_u8(rgb[0])
     for t in range(1, n):
         gray = to_gray_u8(rgb[t])
-        fwd = dense_flow(gray_prev, gray)
-        bwd = dense_flow(gray, gray_prev)
-        p = points[t - 1] + bilinear_sample(fwd, points[t - 1])
-        back = p + bilinear_sample(bwd, p)
-        ok = valid[t - 1] & (np.linalg.norm(back - points[t - 1], axis=1) <= fb_threshold)
-        inside = (p[:, 0] >= 0) & (p[:, 0] <= W - 1) & (p[:, 1] >= 0) & (p[:, 1] <= H - 1)
-        ok &= inside & (bilinear_sample(mask[t], p) >= 0.5)
+        p, ok = _flow_step(dense_flow(gray_prev, gray), dense_flow(gray, gray_prev), mask[t], points[t - 1],
+                           fb_threshold)
+        ok &= valid[t - 1]
+        if reanchor_radius > 0 and t > 1:
+            q, q_ok = _flow_step(dense_flow(gray0, gray), dense_flow(gray, gray0), mask[t], start, fb_threshold)
+            snap = ok & q_ok & (np.linalg.norm(q - p, axis=1) <= reanchor_radius)
+            p = np.where(snap[:, None], q, p)
         points[t] = np.where(ok[:, None], p, points[t - 1])
         valid[t] = ok
         gray_prev = gray
@@ -119,12 +138,12 @@ def visible_vertices(template: torch.Tensor, camera: Camera, mask0: np.ndarray, 
 
 
 def compute_vertex_tracks(rgb: torch.Tensor, mask: torch.Tensor, template: torch.Tensor, camera: Camera,
-                          depth0: torch.Tensor, fb_threshold: float) -> VertexTracks:
+                          depth0: torch.Tensor, fb_threshold: float, reanchor_radius: float = 0.0) -> VertexTracks:
     """Tracks of every template vertex through the target video (rgb (N, H, W, 3), mask (N, H, W))."""
     rgb_np = rgb.detach().cpu().numpy()
     mask_np = mask.detach().cpu().numpy()
     start, ok = visible_vertices(template, camera, mask_np[0], depth0.detach().cpu().numpy())
-    pts, valid = track_points(rgb_np, mask_np, start, ok, fb_threshold)
+    pts, valid = track_points(rgb_np, mask_np, start, ok, fb_threshold, reanchor_radius)
     return VertexTracks(points=torch.as_tensor(pts, dtype=template.dtype, device=template.device),
                         valid=torch.as_tensor(valid, device=template.device),
                         scale=float(max(camera.width, camera.height)))
