@@ -73,6 +73,11 @@ class ShapeConfig:
     initial_epochs: int = 0               # epochs on the initial frames (0 = add_frame_every)
     add_frame_every: int = 5              # one more frame every 5 epochs
     final_epochs: int = 15                # then this many epochs with all frames
+    # Convergence-driven schedule (saft.reconstruct.frame_schedule; 0 = the fixed schedule, the paper): after
+    # add_frame_every epochs, the newest frame waits while the loss still falls by more than plateau_tol
+    # (relative, lowest of the last two epochs against the lowest before), up to this many extra epochs.
+    plateau_max_extra: int = 0
+    plateau_tol: float = 0.02
     # Windowed epochs (0 = off: every epoch simulates from the template, as the paper): while frames are
     # added, simulate only the newest `window` frames from the stored state before them, with a full pass
     # every `full_pass_every` epochs; the work per added frame is then bounded (long videos).

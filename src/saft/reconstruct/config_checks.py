@@ -30,6 +30,8 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "shape.initial_frames": (1, INF, True),
     "shape.add_frame_every": (1, INF, True),
     "shape.final_epochs": (0, 1_000_000, True),
+    "shape.plateau_max_extra": (0, 1_000_000, True),
+    "shape.plateau_tol": (0, 1, True),
     "shape.lambda_image": (0, INF, True),
     "shape.lambda_sil": (0, INF, True),
     "shape.lambda_energy": (0, INF, True),

@@ -41,9 +41,11 @@ class Progress:
         self._progress.start()
         self._task = self._progress.add_task(phase, total=total_epochs, completed=start_epoch, frames="-", loss="-")
 
-    def update(self, epoch: int, frames: int, loss: float) -> None:
+    def update(self, epoch: int, frames: int, loss: float, total: int | None = None) -> None:
+        """total: the phase's epoch count when it has changed (a schedule that waits for convergence)."""
         if self._progress is not None:
-            self._progress.update(self._task, completed=epoch + 1, frames=frames, loss=f"{loss:.4e}")
+            extra = {} if total is None else {"total": total}
+            self._progress.update(self._task, completed=epoch + 1, frames=frames, loss=f"{loss:.4e}", **extra)
         elif self.quiet and time.monotonic() - self._last_log > 30:
             self._last_log = time.monotonic()
             log.info("%s epoch %d frames %d loss %.4e", self.phase, epoch + 1, frames, loss)

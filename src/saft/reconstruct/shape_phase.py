@@ -22,7 +22,8 @@ import numpy as np
 import torch
 
 from saft.physics import ClothTopology, PhysicsParams, deformation_energy, rollout
-from saft.reconstruct.config import PhysicsConfig, ShapeConfig, shape_schedule
+from saft.reconstruct.config import PhysicsConfig, ShapeConfig
+from saft.reconstruct.frame_schedule import FrameSchedule
 from saft.reconstruct.context import PhaseContext
 from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_loss
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
@@ -69,10 +70,12 @@ class ShapeState:
     guard: StepGuard
     epoch: int = 0
     states: FrameStates | None = None
+    schedule: dict | None = None   # FrameSchedule.state_dict() after the last epoch
 
     def state_dict(self) -> dict:
         saved = {"params": {k: v.detach().cpu() for k, v in self.params.tensors().items()},
-                 "optimizer": self.optimizer.state_dict(), "epoch": self.epoch, "guard": self.guard.state_dict()}
+                 "optimizer": self.optimizer.state_dict(), "epoch": self.epoch, "guard": self.guard.state_dict(),
+                 "schedule": self.schedule}
         if self.states is not None:
             saved["frame_states"] = {"x": self.states.x.cpu(), "v": self.states.v.cpu(), "frames": self.states.frames}
         return saved
@@ -117,7 +120,8 @@ def restore_shape_state(saved: dict, cfg: ShapeConfig, device) -> ShapeState:
     p = {k: v.to(device).requires_grad_(k in ("const_accel", "vertex_accel") or cfg.optimize_stiffness)
          for k, v in saved["params"].items()}
     params = ShapeParams(**p)
-    state = ShapeState(params, _make_optimizer(params, cfg), _make_guard(cfg), saved["epoch"])
+    state = ShapeState(params, _make_optimizer(params, cfg), _make_guard(cfg), saved["epoch"],
+                       schedule=saved.get("schedule"))
     state.optimizer.load_state_dict(saved["optimizer"])
     state.guard.load_state_dict(saved.get("guard", {}))
     if "frame_states" in saved:
@@ -187,10 +191,10 @@ def simulate_epoch(sim: ShapeSimulator, state: ShapeState, frames: int, start: i
     return x
 
 
-def window_start(frames: int, epoch: int, first_final: int, states: FrameStates | None, cfg: ShapeConfig) -> int:
+def window_start(frames: int, epoch: int, final: bool, states: FrameStates | None, cfg: ShapeConfig) -> int:
     """First frame simulated in this epoch: 0 (from the template) unless windowed, past the window, not a
     full-pass epoch, not in the final all-frame epochs, and the start state is known."""
-    if states is None or cfg.window <= 0 or epoch >= first_final:
+    if states is None or cfg.window <= 0 or final:
         return 0
     if cfg.full_pass_every > 0 and epoch % cfg.full_pass_every == 0:
         return 0
@@ -262,7 +266,7 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
             "track": float(track.detach()), **sums}
 
 
-def lr_factor(epoch: int, first_final: int, cfg: ShapeConfig) -> float:
+def lr_factor(epoch: int, first_final: float, cfg: ShapeConfig) -> float:
     """Learning-rate factor: 1 until the final all-frame epochs, then a cosine down to final_lr_fraction."""
     if cfg.final_lr_fraction >= 1.0 or epoch < first_final or cfg.final_epochs <= 1:
         return 1.0
@@ -284,42 +288,42 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
                     cfg: ShapeConfig, texture: torch.Tensor) -> torch.Tensor:
     """Optimize through the frame schedule (continuing from state.epoch); returns all frames' positions."""
     n_frames = ctx.target_rgb.shape[0]
-    schedule = shape_schedule(n_frames, cfg)
+    sched = FrameSchedule.restore(n_frames, cfg, state.schedule, state.epoch)
     ranges = {"log10_Y": phys.log10_Y_range, "log10_B": phys.log10_B_range, "log10_S": phys.log10_S_range}
     tracks = shape_tracks(ctx, cfg, texture)
-    first_final = len(schedule) - cfg.final_epochs
     if cfg.window > 0 and state.states is None:
         zeros = ctx.template_positions.new_zeros((n_frames,) + tuple(ctx.template_positions.shape))
         state.states = FrameStates(zeros.clone(), zeros.clone(), 1)
         state.states.x[0] = ctx.template_positions
-    ctx.progress.start_phase("shape", len(schedule), state.epoch)
-    while state.epoch < len(schedule):
+    ctx.progress.start_phase("shape", sched.total_epochs, state.epoch)
+    while not sched.done:
         t0 = time.perf_counter()
-        frames = schedule[state.epoch]
+        frames = sched.frames
         params = state.params
-        previous = schedule[state.epoch - 1] if state.epoch > 0 else frames
-        if cfg.warm_start_new_frames and frames > previous and previous >= 2:
+        if cfg.warm_start_new_frames and sched.just_added and frames - 1 >= 2:
             # Wind changes smoothly: the new transition starts from the last optimized one, not from zero.
             with torch.no_grad():
-                params.vertex_accel[previous - 1: frames - 1] = params.vertex_accel[previous - 2]
+                params.vertex_accel[frames - 2] = params.vertex_accel[frames - 3]
         if cfg.center_vertex_accel and params.vertex_accel.numel():
             with torch.no_grad():
                 params.vertex_accel -= params.vertex_accel.mean(dim=(0, 1), keepdim=True)
         state.optimizer.zero_grad()
-        start = window_start(frames, state.epoch, first_final, state.states, cfg)
+        start = window_start(frames, state.epoch, sched.final, state.states, cfg)
         terms = epoch_loss_and_grad(ctx, sim, state, cfg, texture, frames, tracks, start)
         if start == 0:   # a window's loss covers other frames: not comparable
             state.guard.check(frames, terms["loss"], params.tensors(), state.optimizer)
-        lr = lr_factor(state.epoch, first_final, cfg) * state.guard.lr_scale
+        lr = lr_factor(state.epoch, sched.first_final_epoch(state.epoch), cfg) * state.guard.lr_scale
         state.optimizer.set_lr_factor(lr)
         state.optimizer.step()
         with torch.no_grad():
             for name, (lo, hi) in ranges.items():
                 getattr(params, name).clamp_(lo, hi)
         state.epoch += 1
+        sched.epoch_done(terms["loss"])
+        state.schedule = sched.state_dict()
         ctx.log.add(phase="shape", epoch=state.epoch - 1, frames=frames, seconds=time.perf_counter() - t0,
                     lr_factor=lr, backtracks=state.guard.backtracks, **terms)
-        ctx.progress.update(state.epoch - 1, frames, terms["loss"])
+        ctx.progress.update(state.epoch - 1, frames, terms["loss"], total=sched.total_epochs)
         ctx.epoch_done("shape", state.epoch, state.state_dict)
     ctx.progress.end_phase()
     with torch.no_grad():
