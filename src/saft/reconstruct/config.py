@@ -72,7 +72,7 @@ class ShapeConfig:
     initial_frames: int = 3               # frames 0..2 first
     initial_epochs: int = 0               # epochs on the initial frames (0 = add_frame_every)
     add_frame_every: int = 5              # one more frame every 5 epochs
-    final_epochs: int = 15                # then this many epochs with all frames
+    final_epochs: int = 24                # then this many epochs with all frames (the reference's 260-epoch schedule)
     # Convergence-driven schedule (saft.reconstruct.frame_schedule; 0 = the fixed schedule, the paper): after
     # add_frame_every epochs, the newest frame waits while the loss still falls by more than plateau_tol
     # (relative, lowest of the last two epochs against the lowest before), up to this many extra epochs.
