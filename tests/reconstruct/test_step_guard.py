@@ -73,3 +73,29 @@ def test_new_frame_count_starts_a_new_reference_and_state_round_trips():
     other = StepGuard(ratio=1.2, decay=0.5)
     other.load_state_dict(guard.state_dict())
     assert other.lr_scale == 0.125 and other.backtracks == 3
+
+
+def test_rate_recovers_after_calm_epochs_and_never_exceeds_the_full_rate():
+    x = torch.tensor([1.0], dtype=torch.float64, requires_grad=True)
+    opt = ClippedAdam([ParamSpec("x", x, 0.1)])
+    guard = StepGuard(ratio=1.3, decay=0.5, recover_after=3)
+    x.grad = torch.ones(1, dtype=torch.float64)
+    guard.check(frames=2, loss=1.0, tensors={"x": x}, optimizer=opt)
+    assert guard.check(frames=2, loss=2.0, tensors={"x": x}, optimizer=opt)        # a jump: rate halved
+    assert guard.lr_scale == 0.5
+    scales = []
+    for loss in (0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3):                             # calm epochs
+        guard.check(frames=2, loss=loss, tensors={"x": x}, optimizer=opt)
+        scales.append(guard.lr_scale)
+    assert scales == [0.5, 0.5, 1.0, 1.0, 1.0, 1.0, 1.0]
+    state = guard.state_dict()
+    again = StepGuard(ratio=1.3, decay=0.5, recover_after=3)
+    again.load_state_dict(state)
+    assert again.lr_scale == 1.0 and again.calm == guard.calm
+
+
+def test_without_recovery_a_cut_lasts():
+    losses, guard = _run(StepGuard(ratio=1.3, decay=0.5, recover_after=0))
+    assert guard.lr_scale == pytest.approx(0.5 ** guard.backtracks)
+    _, recovering = _run(StepGuard(ratio=1.3, decay=0.5, recover_after=5))
+    assert recovering.lr_scale > guard.lr_scale

@@ -124,6 +124,9 @@ class ShapeConfig:
     # every learning rate is multiplied by backtrack_decay from then on (0 = off, the paper).
     backtrack_ratio: float = 1.3
     backtrack_decay: float = 0.5
+    # After this many epochs in a row without a backtrack, the rate is divided by backtrack_decay again, up
+    # to the full rate (0 = a cut lasts for the rest of the run).
+    backtrack_recover_epochs: int = 0
     center_vertex_accel: bool = True      # subtract the mean per-vertex acceleration before each epoch
     warm_start_new_frames: bool = True    # a newly added frame starts from the previous frame's accelerations
     # Start of the constant acceleration: "gravity" (the reference), "zero", or "auto" = gravity when the

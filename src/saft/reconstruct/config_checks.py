@@ -50,6 +50,7 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "shape.final_lr_fraction": (0, 1, False),
     "shape.backtrack_ratio": (0, INF, True),
     "shape.backtrack_decay": (0, 1, False),
+    "shape.backtrack_recover_epochs": (0, 1_000_000, True),
     "shape.window": (0, INF, True),
     "shape.full_pass_every": (0, INF, True),
     "appearance.epochs": (1, 1_000_000, True),

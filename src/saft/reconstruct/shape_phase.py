@@ -91,7 +91,8 @@ def _make_optimizer(params: ShapeParams, cfg: ShapeConfig) -> ClippedAdam:
 
 
 def _make_guard(cfg: ShapeConfig) -> StepGuard:
-    return StepGuard(ratio=cfg.backtrack_ratio, decay=cfg.backtrack_decay)
+    return StepGuard(ratio=cfg.backtrack_ratio, decay=cfg.backtrack_decay,
+                     recover_after=cfg.backtrack_recover_epochs)
 
 
 def initial_const_accel(gravity: np.ndarray, pinned, cfg: ShapeConfig) -> np.ndarray:

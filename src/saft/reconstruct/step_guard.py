@@ -8,7 +8,10 @@ watches the loss of each epoch against the lowest loss seen with the same frames
 
 - a new lowest loss: the parameters, the optimizer's state and the gradients are kept (a snapshot);
 - a loss above `ratio` × the lowest: the snapshot is restored, every learning rate is multiplied by
-  `decay` from then on, and the optimizer steps again from the restored point with the smaller rate.
+  `decay` from then on, and the optimizer steps again from the restored point with the smaller rate;
+- optionally (`recover_after` > 0, a trust-region-like rule), after that many epochs in a row without a
+  backtrack the rate is divided by `decay` again, up to the full rate: a cut made for one hard frame
+  then does not slow every later frame.
 
 The snapshot lives in memory only; after --resume the guard starts a new one (its learning-rate scale is
 in the checkpoint).
@@ -29,8 +32,10 @@ from saft.reconstruct.optim import ClippedAdam
 class StepGuard:
     ratio: float                       # loss / lowest loss that triggers a backtrack (0: guard off)
     decay: float                       # learning-rate factor applied at each backtrack
-    lr_scale: float = 1.0              # product of the decays so far
+    recover_after: int = 0             # epochs without a backtrack before the rate is raised again (0: never)
+    lr_scale: float = 1.0              # product of the decays (and recoveries) so far
     backtracks: int = 0
+    calm: int = 0                      # epochs since the last backtrack or recovery
     frames: int = -1                   # frames in use the lowest loss refers to
     lowest: float = math.inf
     _snapshot: dict | None = field(default=None, repr=False)
@@ -40,6 +45,9 @@ class StepGuard:
         parameters, gradients and optimizer state were rolled back to the snapshot (and the rate cut)."""
         if self.ratio <= 0 or not math.isfinite(loss):
             return False
+        self.calm += 1
+        if 0 < self.recover_after <= self.calm and self.lr_scale < 1.0:
+            self.lr_scale, self.calm = min(1.0, self.lr_scale / self.decay), 0
         if frames != self.frames:
             self.frames, self.lowest, self._snapshot = frames, math.inf, None
         if loss <= self.lowest:
@@ -61,14 +69,16 @@ class StepGuard:
         optimizer.load_state_dict(copy.deepcopy(snap["optimizer"]))
         self.lr_scale *= self.decay
         self.backtracks += 1
+        self.calm = 0
         return True
 
     def state_dict(self) -> dict:
-        return {"lr_scale": self.lr_scale, "backtracks": self.backtracks}
+        return {"lr_scale": self.lr_scale, "backtracks": self.backtracks, "calm": self.calm}
 
     def load_state_dict(self, state: dict) -> None:
         self.lr_scale = float(state.get("lr_scale", 1.0))
         self.backtracks = int(state.get("backtracks", 0))
+        self.calm = int(state.get("calm", 0))
 
 
 __all__ = ["StepGuard"]
