@@ -154,6 +154,60 @@ def test_a_window_from_stored_states_continues_the_full_simulation():
     assert torch.allclose(x3, full[3:], atol=1e-8)
 
 
+def test_a_windowed_step_leaves_the_accelerations_before_the_window():
+    """Adam's momentum would move the accelerations of frames before the window (no gradient there): the
+    windowed step restores them; the window's own accelerations and the global parameters move."""
+    from saft.reconstruct.config import PhysicsConfig
+    from saft.reconstruct.shape_phase import new_shape_state, outside_window, restore_outside_window
+
+    state = new_shape_state(6, 9, np.array([0.0, -9.81, 0.0]), PhysicsConfig(), ShapeConfig(window=2), "cpu")
+    params = state.params
+    for t in params.tensors().values():           # a full pass: every parameter gets a gradient
+        t.grad = torch.ones_like(t)
+    state.optimizer.step()
+    before = {k: t.detach().clone() for k, t in params.tensors().items()}
+    for t in params.tensors().values():           # a window from frame 3: gradients there only
+        t.grad = torch.zeros_like(t)
+    params.vertex_accel.grad[3:] = 1.0
+    params.const_accel.grad = torch.ones_like(params.const_accel)
+    keep = outside_window(params, 3)
+    state.optimizer.step()
+    restore_outside_window(params, 3, keep)
+    assert torch.equal(params.vertex_accel[:3], before["vertex_accel"][:3])
+    assert not torch.equal(params.vertex_accel[3:], before["vertex_accel"][3:])
+    assert not torch.equal(params.const_accel, before["const_accel"])
+    assert outside_window(params, 0) is None      # a full pass: nothing is held
+
+
+def test_a_window_after_a_full_step_starts_from_refreshed_states():
+    """A full pass's step changes every acceleration: the stored states are stale, and the next window is
+    simulated from states brought up to date (forward only), so it equals a full simulation."""
+    from saft.reconstruct.config import PhysicsConfig
+    from saft.reconstruct.shape_phase import FrameStates, ShapeSimulator, new_shape_state, simulate_epoch
+    from saft.synthetic import grid_template
+
+    mesh = grid_template(5, 0.3)
+    template = torch.tensor(mesh.vertices)
+    sim = ShapeSimulator(template, mesh.quads, PhysicsConfig(), 0.02, np.arange(5))
+    state = new_shape_state(8, len(template), np.array([0.0, -9.81, 0.0]), PhysicsConfig(), ShapeConfig(), "cpu")
+    zeros = template.new_zeros((8,) + tuple(template.shape))
+    state.states = FrameStates(zeros.clone(), zeros.clone(), 1)
+    gen = torch.Generator().manual_seed(1)
+    with torch.no_grad():
+        state.params.vertex_accel.normal_(0.0, 2.0, generator=gen)
+        simulate_epoch(sim, state, 8, 0)                      # a full pass stores every state
+        assert state.states.fresh == 8
+        state.params.vertex_accel.add_(torch.randn(state.params.vertex_accel.shape, generator=gen,
+                                                   dtype=state.params.vertex_accel.dtype))
+        state.states.stepped(0)                               # ... and its step makes them stale
+        assert state.states.fresh == 1
+        window = simulate_epoch(sim, state, 8, 4)
+        assert torch.allclose(window, sim.simulate(state.params, 8)[4:], atol=1e-8)
+        assert state.states.fresh == 8
+        state.states.stepped(4)                               # a window's step: states up to frame 4 hold
+        assert state.states.fresh == 5
+
+
 def test_windowed_epochs_run_and_keep_gradients(tmp_path):
     """A tiny reconstruction whose epochs start from stored states (shape.window) runs end to end."""
     from saft.config_io import load_config

@@ -55,12 +55,20 @@ class FrameStates:
     x: torch.Tensor                # (N, V, 3)
     v: torch.Tensor                # (N, V, 3)
     frames: int = 1                # frames 0..frames-1 hold states
+    fresh: int = 1                 # frames 0..fresh-1 hold the states of the current parameters
 
     def update(self, start: int, x: torch.Tensor, v: torch.Tensor) -> None:
         n = x.shape[0]
         self.x[start:start + n] = x.detach()
         self.v[start:start + n] = v.detach()
         self.frames = max(self.frames, start + n)
+        if start < self.fresh:
+            self.fresh = max(self.fresh, start + n)
+
+    def stepped(self, first_changed: int) -> None:
+        """The optimizer changed the accelerations from frame `first_changed` on (0: every parameter): the
+        states after that frame no longer match the parameters."""
+        self.fresh = min(self.fresh, first_changed + 1)
 
 
 @dataclass
@@ -77,7 +85,8 @@ class ShapeState:
                  "optimizer": self.optimizer.state_dict(), "epoch": self.epoch, "guard": self.guard.state_dict(),
                  "schedule": self.schedule}
         if self.states is not None:
-            saved["frame_states"] = {"x": self.states.x.cpu(), "v": self.states.v.cpu(), "frames": self.states.frames}
+            saved["frame_states"] = {"x": self.states.x.cpu(), "v": self.states.v.cpu(), "frames": self.states.frames,
+                                     "fresh": self.states.fresh}
         return saved
 
 
@@ -127,7 +136,7 @@ def restore_shape_state(saved: dict, cfg: ShapeConfig, device) -> ShapeState:
     state.guard.load_state_dict(saved.get("guard", {}))
     if "frame_states" in saved:
         fs = saved["frame_states"]
-        state.states = FrameStates(fs["x"].to(device), fs["v"].to(device), int(fs["frames"]))
+        state.states = FrameStates(fs["x"].to(device), fs["v"].to(device), int(fs["frames"]), int(fs.get("fresh", 1)))
     return state
 
 
@@ -185,6 +194,12 @@ def simulate_epoch(sim: ShapeSimulator, state: ShapeState, frames: int, start: i
     if state.states is None:
         return sim.simulate(state.params, frames)
     st = state.states
+    if 0 < start and st.fresh <= start:
+        # Bring the stored states up to the window's start under the current parameters (forward only).
+        s0 = st.fresh - 1
+        with torch.no_grad():
+            x0, v0 = (st.x[s0].clone(), st.v[s0].clone()) if s0 > 0 else (None, None)
+            st.update(s0, *sim.simulate_from(state.params, s0, start + 1, x0, v0))
     # clones: the rollout keeps its start state for the backward, and update() writes into the store
     x0, v0 = (st.x[start].clone(), st.v[start].clone()) if start > 0 else (None, None)
     x, v = sim.simulate_from(state.params, start, frames, x0, v0)
@@ -201,6 +216,22 @@ def window_start(frames: int, epoch: int, final: bool, states: FrameStates | Non
         return 0
     start = frames - 1 - cfg.window
     return start if 0 < start < states.frames else 0
+
+
+def outside_window(params: ShapeParams, start: int) -> torch.Tensor | None:
+    """The accelerations a windowed epoch (start > 0) must leave as they are: those of the frames before the
+    window, with which the stored states were simulated. Without this, Adam's momentum keeps moving the
+    accelerations of frames that just left the window (by up to ~10 learning rates in all, with no gradient)
+    and the stored states drift from what a full pass gives (BENCHMARKS.md: 3.17 -> 2.05 mean CD2 on
+    bench_scaling's 50 frames). Y, B, S and C stay free: held to the full passes, they cost far more (14.6)
+    than the slight staleness of the states their small steps cause."""
+    return params.vertex_accel[:start].detach().clone() if start > 0 else None
+
+
+def restore_outside_window(params: ShapeParams, start: int, keep: torch.Tensor | None) -> None:
+    if keep is not None:
+        with torch.no_grad():
+            params.vertex_accel[:start] = keep
 
 
 def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, cfg: ShapeConfig,
@@ -305,17 +336,21 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
             # Wind changes smoothly: the new transition starts from the last optimized one, not from zero.
             with torch.no_grad():
                 params.vertex_accel[frames - 2] = params.vertex_accel[frames - 3]
-        if cfg.center_vertex_accel and params.vertex_accel.numel():
+        start = window_start(frames, state.epoch, sched.final, state.states, cfg)
+        if cfg.center_vertex_accel and params.vertex_accel.numel() and start == 0:
             with torch.no_grad():
                 params.vertex_accel -= params.vertex_accel.mean(dim=(0, 1), keepdim=True)
         state.optimizer.zero_grad()
-        start = window_start(frames, state.epoch, sched.final, state.states, cfg)
         terms = epoch_loss_and_grad(ctx, sim, state, cfg, texture, frames, tracks, start)
         if start == 0:   # a window's loss covers other frames: not comparable
             state.guard.check(frames, terms["loss"], params.tensors(), state.optimizer)
         lr = lr_factor(state.epoch, sched.first_final_epoch(state.epoch), cfg) * state.guard.lr_scale
         state.optimizer.set_lr_factor(lr)
+        frozen = outside_window(params, start)
         state.optimizer.step()
+        restore_outside_window(params, start, frozen)
+        if state.states is not None:   # a full pass's step moved every acceleration: refresh before the next window
+            state.states.stepped(start)
         with torch.no_grad():
             for name, (lo, hi) in ranges.items():
                 getattr(params, name).clamp_(lo, hi)
