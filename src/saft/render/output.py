@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import Callable
 
 import torch
 
 
-@dataclass
 class RenderOutput:
     """rgb (B, H, W, 3): texture colours as they are (no lighting), black background, antialiased.
     mask (B, H, W): antialiased coverage in [0, 1] (differentiable, silhouette gradients).
@@ -16,14 +15,31 @@ class RenderOutput:
     vertex normals, oriented by the triangle winding (not flipped towards the camera); 0 where empty.
     rast (B, H, W, 4): the raw rasterizer output (u, v, z/w, triangle_id + 1) (detached on the torch
     backend, whose gradients flow through its own compact kernels).
-    pos_clip (B, V, 4): the clip-space vertices used."""
+    pos_clip (B, V, 4): the clip-space vertices used.
 
-    rgb: torch.Tensor
-    mask: torch.Tensor
-    depth: torch.Tensor
-    normals: torch.Tensor
-    rast: torch.Tensor
-    pos_clip: torch.Tensor
+    normals and rast may be given as zero-argument functions: they are then made on first access. The
+    shape phase reads neither, and on the torch backend the two dense images cost about a quarter of a
+    700 x 800 render's forward + backward (BENCHMARKS.md)."""
+
+    __slots__ = ("rgb", "mask", "depth", "pos_clip", "_normals", "_rast")
+
+    def __init__(self, rgb: torch.Tensor, mask: torch.Tensor, depth: torch.Tensor,
+                 normals: torch.Tensor | Callable[[], torch.Tensor], rast: torch.Tensor | Callable[[], torch.Tensor],
+                 pos_clip: torch.Tensor):
+        self.rgb, self.mask, self.depth, self.pos_clip = rgb, mask, depth, pos_clip
+        self._normals, self._rast = normals, rast
+
+    @property
+    def normals(self) -> torch.Tensor:
+        if callable(self._normals):
+            self._normals = self._normals()
+        return self._normals
+
+    @property
+    def rast(self) -> torch.Tensor:
+        if callable(self._rast):
+            self._rast = self._rast()
+        return self._rast
 
 
 def vertex_normals(vertices: torch.Tensor, tri: torch.Tensor) -> torch.Tensor:

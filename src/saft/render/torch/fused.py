@@ -334,12 +334,17 @@ def render_cloth_fused(vertices, pos, tri, uv, tex, H, W, max_mip_level) -> Rend
     with torch.no_grad():
         tid_img = torch.full((n_pix,), -1, dtype=torch.long, device=pos.device).index_copy_(0, pix, tid)
         depth_img = torch.full((n_pix,), math.inf, dtype=pos.dtype, device=pos.device).index_copy_(0, pix, zw)
-        rast = pos.new_zeros(n_pix, 4).index_copy_(
-            0, pix, torch.stack([bw[0], bw[1], zw, (tid + 1).to(pos.dtype)], dim=-1))
     rgb, mask = antialias_core((rgb_img, cov_img), tid_img.reshape(B, H, W), depth_img.reshape(B, H, W),
                                   pos, tri, split=True)
     depth = scatter_rows(depth_c, pix, n_pix).reshape(B, H, W)
-    n = n / (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt().clamp_min(1e-12)  # (3, P): no dim-0 norm
-    normals = scatter_rows(n.T, pix, n_pix).reshape(B, H, W, 3)
-    return RenderOutput(rgb=rgb, mask=mask, depth=depth, normals=normals, rast=rast.reshape(B, H, W, 4),
-                        pos_clip=pos)
+
+    def normals_image() -> torch.Tensor:   # made only when read (the shape phase does not)
+        nn = n / (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt().clamp_min(1e-12)  # (3, P): no dim-0 norm
+        return scatter_rows(nn.T, pix, n_pix).reshape(B, H, W, 3)
+
+    def rast_image() -> torch.Tensor:
+        with torch.no_grad():
+            return pos.new_zeros(n_pix, 4).index_copy_(
+                0, pix, torch.stack([bw[0], bw[1], zw, (tid + 1).to(pos.dtype)], dim=-1)).reshape(B, H, W, 4)
+
+    return RenderOutput(rgb=rgb, mask=mask, depth=depth, normals=normals_image, rast=rast_image, pos_clip=pos)
