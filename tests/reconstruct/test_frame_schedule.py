@@ -57,3 +57,20 @@ def test_old_checkpoints_without_schedule_state_resume_on_the_fixed_schedule(epo
     fixed = shape_schedule(50, cfg)
     s = FrameSchedule.restore(50, cfg, None, epoch)
     assert _run(s, lambda s_, k: 1.0) == fixed[epoch:]
+
+
+def test_simulated_frames_per_epoch_counts_the_windowed_work():
+    from saft.reconstruct.frame_schedule import simulated_frames_per_epoch, window_first_frame
+
+    full = ShapeConfig(window=0)
+    assert simulated_frames_per_epoch(40, full) == shape_schedule(40, full)
+    cfg = ShapeConfig(window=6, full_pass_every=10)
+    sched = shape_schedule(40, cfg)
+    work = simulated_frames_per_epoch(40, cfg)
+    assert len(work) == len(sched)
+    for epoch, (f, n) in enumerate(zip(sched, work)):
+        if f >= 40 or epoch % 10 == 0 or f <= 7:   # final epochs, full passes, frames within the window
+            assert n == f
+        else:                                      # the window and the state it starts from
+            assert n == 7 == f - window_first_frame(f, epoch, False, cfg)
+    assert sum(work) < 0.6 * sum(sched)

@@ -9,6 +9,8 @@ steps a known number of times (the epoch schedule), so
     time   ≈ texture epochs · t_render + Σ_shape epochs (frames · t_render + (frames − 1) · t_transition)
     memory ≈ targets + (frames − 1) · graph per transition + min(frames, render chunk) · graph per render
 
+(frames: those the epoch simulates; in the windowed epochs of shape.window, fewer than those in use).
+
 The appearance phase (Mitsuba) is not included. A large template or an estimate above the machine's
 memory is warned about.
 """
@@ -24,7 +26,8 @@ from dataclasses import dataclass
 import torch
 
 from saft.physics import PhysicsParams, rollout
-from saft.reconstruct.config import SaftConfig, shape_schedule
+from saft.reconstruct.config import SaftConfig
+from saft.reconstruct.frame_schedule import simulated_frames_per_epoch
 from saft.reconstruct.shape_phase import RENDER_CHUNK
 
 log = logging.getLogger("saft")
@@ -87,7 +90,7 @@ def measure_run(ctx, sim, cfg: SaftConfig, num_frames: int, gravity) -> RunEstim
     t_step, b_step = t_sub * phys.substeps, b_sub * phys.substeps
 
     texture_epochs = cfg.texture.epochs if cfg.texture.enabled else 0
-    schedule = shape_schedule(num_frames, cfg.shape) if cfg.shape.enabled else []
+    schedule = simulated_frames_per_epoch(num_frames, cfg.shape) if cfg.shape.enabled else []
     seconds = texture_epochs * t_render + sum(f * t_render + (f - 1) * t_step for f in schedule)
     seconds += num_frames * t_render   # the final renders
     targets = ctx.target_rgb.numel() * ctx.target_rgb.element_size() + ctx.target_mask.numel() * 4

@@ -105,4 +105,19 @@ class FrameSchedule:
         return sched
 
 
-__all__ = ["FrameSchedule"]
+def window_first_frame(frames: int, epoch: int, final: bool, cfg: ShapeConfig) -> int:
+    """First frame an epoch simulates under the windowed schedule (shape.window): 0 (from the template)
+    when windows are off, in the final all-frame epochs, on every full_pass_every-th epoch, and while the
+    frames in use do not reach past the window; else the frame `window` transitions before the newest."""
+    if cfg.window <= 0 or final or (cfg.full_pass_every > 0 and epoch % cfg.full_pass_every == 0):
+        return 0
+    return max(0, frames - 1 - cfg.window)
+
+
+def simulated_frames_per_epoch(num_frames: int, cfg: ShapeConfig) -> list[int]:
+    """Frames simulated and rendered in each epoch of the fixed schedule (the work of the epoch)."""
+    return [f - window_first_frame(f, epoch, f >= num_frames, cfg)
+            for epoch, f in enumerate(shape_schedule(num_frames, cfg))]
+
+
+__all__ = ["FrameSchedule", "window_first_frame", "simulated_frames_per_epoch"]

@@ -23,7 +23,7 @@ import torch
 
 from saft.physics import ClothTopology, PhysicsParams, deformation_energy, rollout
 from saft.reconstruct.config import PhysicsConfig, ShapeConfig
-from saft.reconstruct.frame_schedule import FrameSchedule
+from saft.reconstruct.frame_schedule import FrameSchedule, window_first_frame
 from saft.reconstruct.context import PhaseContext
 from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_loss
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
@@ -208,14 +208,12 @@ def simulate_epoch(sim: ShapeSimulator, state: ShapeState, frames: int, start: i
 
 
 def window_start(frames: int, epoch: int, final: bool, states: FrameStates | None, cfg: ShapeConfig) -> int:
-    """First frame simulated in this epoch: 0 (from the template) unless windowed, past the window, not a
-    full-pass epoch, not in the final all-frame epochs, and the start state is known."""
-    if states is None or cfg.window <= 0 or final:
+    """First frame simulated in this epoch: frame_schedule.window_first_frame, or 0 while the stored states
+    do not reach it yet."""
+    if states is None:
         return 0
-    if cfg.full_pass_every > 0 and epoch % cfg.full_pass_every == 0:
-        return 0
-    start = frames - 1 - cfg.window
-    return start if 0 < start < states.frames else 0
+    start = window_first_frame(frames, epoch, final, cfg)
+    return start if start < states.frames else 0
 
 
 def outside_window(params: ShapeParams, start: int) -> torch.Tensor | None:
