@@ -28,7 +28,7 @@ import torch
 from saft.physics import PhysicsParams, rollout
 from saft.reconstruct.config import SaftConfig
 from saft.reconstruct.frame_schedule import simulated_frames_per_epoch
-from saft.reconstruct.shape_phase import RENDER_CHUNK
+from saft.reconstruct.shape_phase import render_chunk
 
 log = logging.getLogger("saft")
 
@@ -94,7 +94,7 @@ def measure_run(ctx, sim, cfg: SaftConfig, num_frames: int, gravity) -> RunEstim
     seconds = texture_epochs * t_render + sum(f * t_render + (f - 1) * t_step for f in schedule)
     seconds += num_frames * t_render   # the final renders
     targets = ctx.target_rgb.numel() * ctx.target_rgb.element_size() + ctx.target_mask.numel() * 4
-    peak = targets + (num_frames - 1) * b_step + min(num_frames, RENDER_CHUNK) * b_render
+    peak = targets + (num_frames - 1) * b_step + min(num_frames, render_chunk(device)) * b_render
     return RunEstimate(seconds, int(peak), t_render, t_step)
 
 

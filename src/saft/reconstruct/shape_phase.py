@@ -30,8 +30,16 @@ from saft.reconstruct.optim import ClippedAdam, ParamSpec
 from saft.reconstruct.step_guard import StepGuard
 from saft.reconstruct.tracks import VertexTracks, compute_vertex_tracks, hidden_vertices, track_loss
 
-# Frames rendered per batch inside an epoch; the physics graph is kept, the render graphs are not.
-RENDER_CHUNK = 8
+# Frames rendered per batch inside an epoch; the physics graph is kept, the render graphs are not. On a
+# GPU a batch of 8 fills the device; on a CPU one frame at a time is cheaper per frame (R1's 700 x 800,
+# forward + backward: ~60 ms a frame alone, ~115 ms a frame in a batch of 8, whose large temporaries miss
+# the caches and are paged in and out by the allocator; BENCHMARKS.md).
+RENDER_CHUNK = {"cpu": 1}
+RENDER_CHUNK_DEFAULT = 8
+
+
+def render_chunk(device) -> int:
+    return RENDER_CHUNK.get(torch.device(device).type, RENDER_CHUNK_DEFAULT)
 
 
 @dataclass
@@ -245,8 +253,9 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
     # Render in chunks: each chunk's graph is freed after its backward into pos_leaf.
     sums = {"image": 0.0, "silhouette": 0.0}
     depths = []
-    for lo in range(0, n_win, RENDER_CHUNK):
-        hi = min(n_win, lo + RENDER_CHUNK)
+    batch = render_chunk(positions.device)
+    for lo in range(0, n_win, batch):
+        hi = min(n_win, lo + batch)
         out = ctx.render(pos_leaf[lo:hi], texture)
         if tracks is not None and cfg.track_occlusion:
             depths.append(out.depth.detach())
