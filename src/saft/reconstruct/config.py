@@ -82,7 +82,7 @@ class ShapeConfig:
     # added, simulate only the newest `window` frames from the stored state before them (the accelerations
     # before the window held), with a full pass every `full_pass_every` epochs and in the final epochs.
     # The work per added frame is then bounded (long videos), and on R1 the result is better than with
-    # full passes (median CD2 0.53-0.66 against 0.94; BENCHMARKS.md). 16, not 8: a window of 8 was 1.3-4.9x
+    # full passes (median CD2 of 3 runs 0.47-0.53 against 0.94; BENCHMARKS.md). 16, not 8: a window of 8 was 1.3-4.9x
     # worse on the fast benchmark scenes, 16 is within their run-to-run noise of full passes.
     window: int = 16
     full_pass_every: int = 25
