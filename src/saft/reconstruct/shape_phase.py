@@ -34,12 +34,8 @@ from saft.reconstruct.tracks import VertexTracks, compute_vertex_tracks, hidden_
 # GPU a batch of 8 fills the device; on a CPU one frame at a time is cheaper per frame (R1's 700 x 800,
 # forward + backward: ~60 ms a frame alone, ~115 ms a frame in a batch of 8, whose large temporaries miss
 # the caches and are paged in and out by the allocator; BENCHMARKS.md).
-RENDER_CHUNK = {"cpu": 1}
-RENDER_CHUNK_DEFAULT = 8
-
-
 def render_chunk(device) -> int:
-    return RENDER_CHUNK.get(torch.device(device).type, RENDER_CHUNK_DEFAULT)
+    return 1 if torch.device(device).type == "cpu" else 8
 
 
 @dataclass
