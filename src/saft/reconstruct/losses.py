@@ -23,8 +23,11 @@ def finite_difference_smoothness(texture: torch.Tensor) -> torch.Tensor:
     return dx + dy
 
 
-def force_regularizer(accel: torch.Tensor, positions: torch.Tensor, camera_center: torch.Tensor) -> torch.Tensor:
-    """R_F: mean over frames and vertices of |F − (F·d) d|, d the unit direction from the camera to the vertex.
+def force_regularizer(accel: torch.Tensor, positions: torch.Tensor, camera_center: torch.Tensor,
+                      along_weight: float = 0.0) -> torch.Tensor:
+    """R_F: mean over frames and vertices of |F − (1 − w) (F·d) d|, d the unit direction from the camera to
+    the vertex; w = along_weight: 0 (the paper) leaves the part along the viewing ray free, 1 penalises the
+    whole vector.
 
     accel: (F, V, 3) the per-vertex, per-frame external accelerations; positions: (F, V, 3) the vertex
     positions the directions are taken at (the CURRENT simulated positions of the frames those forces
@@ -34,4 +37,4 @@ def force_regularizer(accel: torch.Tensor, positions: torch.Tensor, camera_cente
     d = d / d.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     d = d.to(accel.dtype)
     along = (accel * d).sum(dim=-1, keepdim=True) * d
-    return (accel - along).norm(dim=-1).mean()
+    return (accel - (1.0 - along_weight) * along).norm(dim=-1).mean()

@@ -25,6 +25,7 @@ from saft.physics import ClothTopology, PhysicsParams, deformation_energy, rollo
 from saft.reconstruct.config import PhysicsConfig, ShapeConfig
 from saft.reconstruct.frame_schedule import FrameSchedule, window_first_frame
 from saft.reconstruct.context import PhaseContext
+from saft.reconstruct.force_field import affine_basis, field_accelerations
 from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_loss
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
 from saft.reconstruct.step_guard import StepGuard
@@ -45,10 +46,22 @@ class ShapeParams:
     log10_S: torch.Tensor
     const_accel: torch.Tensor      # (3,)
     vertex_accel: torch.Tensor     # (N-1, V, 3): during the substeps from frame k to k+1
+    field_accel: torch.Tensor | None = None   # (N-1, 4, 3): the affine field's coefficients (force_field.py)
 
     def tensors(self) -> dict[str, torch.Tensor]:
-        return {"log10_Y": self.log10_Y, "log10_B": self.log10_B, "log10_S": self.log10_S,
-                "const_accel": self.const_accel, "vertex_accel": self.vertex_accel}
+        t = {"log10_Y": self.log10_Y, "log10_B": self.log10_B, "log10_S": self.log10_S,
+             "const_accel": self.const_accel, "vertex_accel": self.vertex_accel}
+        if self.field_accel is not None:
+            t["field_accel"] = self.field_accel
+        return t
+
+    def accelerations(self, basis: torch.Tensor, lo: int, hi: int) -> torch.Tensor:
+        """(hi - lo, V, 3) external accelerations beyond the constant one, frames lo..hi-1: D_f plus the
+        affine field when it is on."""
+        a = self.vertex_accel[lo:hi]
+        if self.field_accel is not None:
+            a = a + field_accelerations(self.field_accel[lo:hi], basis)
+        return a
 
 
 @dataclass
@@ -97,6 +110,8 @@ class ShapeState:
 def _make_optimizer(params: ShapeParams, cfg: ShapeConfig) -> ClippedAdam:
     specs = [ParamSpec("const_accel", params.const_accel, cfg.lr_const_accel),
              ParamSpec("vertex_accel", params.vertex_accel, cfg.lr_vertex_accel)]
+    if params.field_accel is not None:
+        specs.append(ParamSpec("field_accel", params.field_accel, cfg.lr_field_accel))
     if cfg.optimize_stiffness:
         specs += [ParamSpec(n, getattr(params, n), cfg.lr_stiffness) for n in ("log10_Y", "log10_B", "log10_S")]
     return ClippedAdam(specs, clip=cfg.grad_clip, quantile=cfg.autoclip_quantile, history=cfg.autoclip_history,
@@ -126,12 +141,14 @@ def new_shape_state(num_frames: int, num_vertices: int, gravity: np.ndarray, phy
         const_accel=torch.tensor(np.asarray(gravity, dtype=np.float64), dtype=dtype, device=device).requires_grad_(True),
         vertex_accel=torch.zeros(max(num_frames - 1, 0), num_vertices, 3, dtype=dtype, device=device,
                                  requires_grad=True),
+        field_accel=(torch.zeros(max(num_frames - 1, 0), 4, 3, dtype=dtype, device=device, requires_grad=True)
+                     if cfg.lr_field_accel > 0 else None),
     )
     return ShapeState(params, _make_optimizer(params, cfg), _make_guard(cfg))
 
 
 def restore_shape_state(saved: dict, cfg: ShapeConfig, device) -> ShapeState:
-    p = {k: v.to(device).requires_grad_(k in ("const_accel", "vertex_accel") or cfg.optimize_stiffness)
+    p = {k: v.to(device).requires_grad_(k in ("const_accel", "vertex_accel", "field_accel") or cfg.optimize_stiffness)
          for k, v in saved["params"].items()}
     params = ShapeParams(**p)
     state = ShapeState(params, _make_optimizer(params, cfg), _make_guard(cfg), saved["epoch"],
@@ -156,10 +173,11 @@ class ShapeSimulator:
                                                  device=template.device, dtype=template.dtype)
         self.pinned = None if pinned is None or len(pinned) == 0 else torch.as_tensor(pinned, device=template.device)
         self.mean_edge_length = float(self.topology.rest_len.mean())
+        self.field_basis = affine_basis(template.detach())
 
     def simulate(self, params: ShapeParams, num_frames: int) -> torch.Tensor:
         """(num_frames, V, 3) positions, frame 0 = template."""
-        return rollout(self.topology, self.template, None, self._physics(params, params.vertex_accel[: num_frames - 1]),
+        return rollout(self.topology, self.template, None, self._physics(params, params.accelerations(self.field_basis, 0, num_frames - 1)),
                        num_frames=num_frames, substeps=self.phys.substeps, frame_dt=self.frame_dt,
                        pinned=self.pinned, hessian=self.phys.hessian)
 
@@ -175,7 +193,7 @@ class ShapeSimulator:
         n = num_frames - start
         x0 = self.template if x0 is None else x0
         v0 = torch.zeros_like(x0) if v0 is None else v0
-        a_sub = params.vertex_accel[start: num_frames - 1].repeat_interleave(S, dim=0)
+        a_sub = params.accelerations(self.field_basis, start, num_frames - 1).repeat_interleave(S, dim=0)
         pos = rollout(self.topology, x0, v0, self._physics(params, a_sub), num_frames=(n - 1) * S + 1, substeps=1,
                       frame_dt=self.frame_dt / S, pinned=self.pinned, hessian=self.phys.hessian)
         x = pos[::S]
@@ -220,20 +238,28 @@ def window_start(frames: int, epoch: int, final: bool, states: FrameStates | Non
     return start if start < states.frames else 0
 
 
-def outside_window(params: ShapeParams, start: int) -> torch.Tensor | None:
+def outside_window(params: ShapeParams, start: int) -> list[torch.Tensor] | None:
     """The accelerations a windowed epoch (start > 0) must leave as they are: those of the frames before the
     window, with which the stored states were simulated. Without this, Adam's momentum keeps moving the
     accelerations of frames that just left the window (by up to ~10 learning rates in all, with no gradient)
     and the stored states drift from what a full pass gives (BENCHMARKS.md: 3.17 -> 2.05 mean CD2 on
     bench_scaling's 50 frames). Y, B, S and C stay free: held to the full passes, they cost far more (14.6)
     than the slight staleness of the states their small steps cause."""
-    return params.vertex_accel[:start].detach().clone() if start > 0 else None
+    if start <= 0:
+        return None
+    return [t[:start].detach().clone() for t in _per_frame(params)]
 
 
-def restore_outside_window(params: ShapeParams, start: int, keep: torch.Tensor | None) -> None:
+def restore_outside_window(params: ShapeParams, start: int, keep: list[torch.Tensor] | None) -> None:
     if keep is not None:
         with torch.no_grad():
-            params.vertex_accel[:start] = keep
+            for t, k in zip(_per_frame(params), keep):
+                t[:start] = k
+
+
+def _per_frame(params: ShapeParams) -> list[torch.Tensor]:
+    """The parameters indexed by frame transition."""
+    return [params.vertex_accel] + ([params.field_accel] if params.field_accel is not None else [])
 
 
 def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, cfg: ShapeConfig,
@@ -272,11 +298,11 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
     energy = sim.energy(positions, params).mean()
     cam_center = torch.as_tensor(ctx.camera.center, dtype=positions.dtype, device=positions.device)
     if n_win > 1:
-        accel = params.vertex_accel[start: frames - 1]
+        accel = params.accelerations(sim.field_basis, start, frames - 1)
         if cfg.force_target == "total":
             accel = accel + params.const_accel
         dir_pos = positions[1:] if cfg.force_directions == "current" else sim.template.expand(n_win - 1, -1, -1)
-        force = force_regularizer(accel, dir_pos, cam_center)
+        force = force_regularizer(accel, dir_pos, cam_center, cfg.force_along_weight)
     else:
         force = torch.zeros((), dtype=positions.dtype, device=positions.device)
     if tracks is not None:
@@ -338,7 +364,8 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
         if cfg.warm_start_new_frames and sched.just_added and frames - 1 >= 2:
             # Wind changes smoothly: the new transition starts from the last optimized one, not from zero.
             with torch.no_grad():
-                params.vertex_accel[frames - 2] = params.vertex_accel[frames - 3]
+                for t in _per_frame(params):
+                    t[frames - 2] = t[frames - 3]
         start = window_start(frames, state.epoch, sched.final, state.states, cfg)
         if cfg.center_vertex_accel and params.vertex_accel.numel() and start == 0:
             with torch.no_grad():

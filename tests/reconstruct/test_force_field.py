@@ -1,0 +1,110 @@
+"""The per-frame affine acceleration field (saft.reconstruct.force_field) and how the shape phase uses it."""
+
+import numpy as np
+import pytest
+import torch
+
+from saft.reconstruct.config import PhysicsConfig, ShapeConfig
+from saft.reconstruct.force_field import affine_basis, field_accelerations
+
+
+def test_affine_basis_is_the_centred_scaled_template():
+    template = torch.tensor([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 1.0, 0.0], [2.0, 1.0, 0.0]], dtype=torch.float64)
+    b = affine_basis(template)
+    assert b.shape == (4, 4)
+    assert torch.equal(b[:, 0], torch.ones(4, dtype=torch.float64))
+    assert torch.allclose(b[:, 1], torch.tensor([-1.0, 1.0, -1.0, 1.0], dtype=torch.float64))   # x: half-extent 1
+    assert torch.allclose(b[:, 2], torch.tensor([-0.5, -0.5, 0.5, 0.5], dtype=torch.float64))   # y: same scale
+    assert torch.equal(b[:, 3], torch.zeros(4, dtype=torch.float64))                          # flat in z
+
+
+def test_field_accelerations_match_the_affine_formula():
+    gen = torch.Generator().manual_seed(0)
+    template = torch.randn(7, 3, generator=gen, dtype=torch.float64)
+    coeffs = torch.randn(3, 4, 3, generator=gen, dtype=torch.float64)
+    basis = affine_basis(template)
+    a = field_accelerations(coeffs, basis)
+    assert a.shape == (3, 7, 3)
+    k, v = 2, 5
+    expected = coeffs[k, 0] + basis[v, 1] * coeffs[k, 1] + basis[v, 2] * coeffs[k, 2] + basis[v, 3] * coeffs[k, 3]
+    assert torch.allclose(a[k, v], expected)
+
+
+def _sim_and_state(cfg, frames=6, pinned=None):
+    from saft.reconstruct.shape_phase import ShapeSimulator, new_shape_state
+    from saft.synthetic import grid_template
+
+    mesh = grid_template(5, 0.3)
+    template = torch.tensor(mesh.vertices)
+    sim = ShapeSimulator(template, mesh.quads, PhysicsConfig(), 0.02, pinned)
+    state = new_shape_state(frames, len(template), np.zeros(3), PhysicsConfig(), cfg, "cpu")
+    return sim, state
+
+
+def test_the_field_is_off_by_default_and_adds_to_the_vertex_accelerations_when_on():
+    _, off = _sim_and_state(ShapeConfig())
+    assert off.params.field_accel is None and "field_accel" not in off.params.tensors()
+    sim, on = _sim_and_state(ShapeConfig(lr_field_accel=1.0))
+    p = on.params
+    assert p.field_accel.shape == (5, 4, 3) and "field_accel" in p.tensors()
+    with torch.no_grad():
+        p.field_accel[1, 0] = torch.tensor([0.0, 3.0, 0.0], dtype=p.field_accel.dtype)   # uniform lift in frame 1
+    a = p.accelerations(sim.field_basis, 0, 5)
+    assert torch.allclose(a[1, :, 1], torch.full((a.shape[1],), 3.0, dtype=a.dtype))
+    assert torch.equal(a[0], p.vertex_accel[0])
+
+
+def test_a_uniform_field_moves_the_cloth_as_the_same_per_vertex_accelerations_do():
+    sim, state = _sim_and_state(ShapeConfig(lr_field_accel=1.0))
+    p = state.params
+    with torch.no_grad():
+        p.field_accel[:, 0] = torch.tensor([0.5, 2.0, -1.0], dtype=p.field_accel.dtype)
+        via_field = sim.simulate(p, 6)
+        p.field_accel.zero_()
+        p.vertex_accel[:] = torch.tensor([0.5, 2.0, -1.0], dtype=p.vertex_accel.dtype)
+        via_vertices = sim.simulate(p, 6)
+    assert torch.allclose(via_field, via_vertices, atol=1e-12)
+    assert float((via_field[-1] - via_field[0]).norm()) > 1e-3
+
+
+def test_the_field_gets_gradients_and_is_held_before_a_window():
+    from saft.reconstruct.shape_phase import outside_window, restore_outside_window
+
+    sim, state = _sim_and_state(ShapeConfig(lr_field_accel=1.0, window=2))
+    p = state.params
+    sim.simulate(p, 6)[-1].sum().backward()
+    assert p.field_accel.grad is not None and float(p.field_accel.grad.abs().sum()) > 0
+    for t in p.tensors().values():
+        t.grad = torch.ones_like(t)
+    state.optimizer.step()
+    before = p.field_accel.detach().clone()
+    for t in p.tensors().values():
+        t.grad = torch.zeros_like(t)
+    p.field_accel.grad[3:] = 1.0
+    keep = outside_window(p, 3)
+    state.optimizer.step()
+    restore_outside_window(p, 3, keep)
+    assert torch.equal(p.field_accel[:3], before[:3])
+    assert not torch.equal(p.field_accel[3:], before[3:])
+
+
+def test_a_checkpointed_state_with_the_field_restores_it():
+    from saft.reconstruct.shape_phase import restore_shape_state
+
+    cfg = ShapeConfig(lr_field_accel=1.0)
+    _, state = _sim_and_state(cfg)
+    with torch.no_grad():
+        state.params.field_accel.fill_(0.25)
+    restored = restore_shape_state(state.state_dict(), cfg, "cpu")
+    assert torch.equal(restored.params.field_accel, state.params.field_accel)
+    assert restored.params.field_accel.requires_grad
+
+
+@pytest.mark.parametrize("weight, expected", [(0.0, 0.0), (1.0, 2.0), (0.5, 1.0)])
+def test_force_regularizer_weights_the_component_along_the_viewing_ray(weight, expected):
+    from saft.reconstruct.losses import force_regularizer
+
+    accel = torch.tensor([[[0.0, 0.0, 2.0]]], dtype=torch.float64)       # along the ray to the vertex
+    positions = torch.tensor([[[0.0, 0.0, 1.0]]], dtype=torch.float64)
+    camera = torch.zeros(3, dtype=torch.float64)
+    assert float(force_regularizer(accel, positions, camera, weight)) == pytest.approx(expected)
