@@ -41,9 +41,11 @@ def _sim_and_state(cfg, frames=6, pinned=None):
     return sim, state
 
 
-def test_the_field_is_off_by_default_and_adds_to_the_vertex_accelerations_when_on():
-    _, off = _sim_and_state(ShapeConfig())
+def test_the_field_is_on_by_default_off_at_rate_zero_and_adds_to_the_vertex_accelerations():
+    _, off = _sim_and_state(ShapeConfig(lr_field_accel=0.0))
     assert off.params.field_accel is None and "field_accel" not in off.params.tensors()
+    _, default = _sim_and_state(ShapeConfig())
+    assert default.params.field_accel is not None
     sim, on = _sim_and_state(ShapeConfig(lr_field_accel=1.0))
     p = on.params
     assert p.field_accel.shape == (5, 4, 3) and "field_accel" in p.tensors()

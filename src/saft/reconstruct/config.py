@@ -95,8 +95,10 @@ class ShapeConfig:
     # external acceleration (the paper's supplement and the reference's code).
     force_target: Literal["vertex", "total"] = "vertex"
     # Weight of the force's component along the viewing ray in R_F (0 = the paper: only the part
-    # perpendicular to the ray is penalised; 1 = the whole vector).
-    force_along_weight: float = 0.0
+    # perpendicular to the ray is penalised; 1 = the whole vector). 1: with the affine field below, a
+    # free component along the rays let the whole cloth drift in depth over R1's last frames (last-frame
+    # CD2 2.41 against 0.84; BENCHMARKS.md, "Affine acceleration field").
+    force_along_weight: float = 1.0
     # Point tracks (saft.reconstruct.tracks; not in the paper): λ of the track loss (0 = off, the paper),
     # the forward-backward check in pixels, and the Huber threshold in pixels beyond which a residual
     # counts linearly. With the backtracking and the final decay below, R1's mean CD2 falls from 2.6-3.0
@@ -117,9 +119,11 @@ class ShapeConfig:
     lr_stiffness: float = 2e-2
     lr_const_accel: float = 1e-1
     lr_vertex_accel: float = 2e-1
-    # Learning rate of a per-frame affine acceleration field over the template (saft.reconstruct.force_field;
-    # 0 = off, the paper): whole-cloth motions at the scale of gravity in a few epochs.
-    lr_field_accel: float = 0.0
+    # Learning rate of a per-frame affine acceleration field over the template, added to the per-vertex
+    # accelerations (saft.reconstruct.force_field; 0 = off, the paper): whole-cloth motions (a swing, a
+    # sway in the wind) at the scale of gravity within a few epochs. 0.3: 1.0 overshot early and the step
+    # guard cut every rate for the rest of the run (BENCHMARKS.md, "Affine acceleration field").
+    lr_field_accel: float = 0.3
     normalize_loss: bool = True           # divide the loss by its detached value before backward
     grad_clip: float = 1e3
     autoclip_quantile: float = 0.75

@@ -6,11 +6,13 @@ Each epoch simulates from the template through the frames in use and renders the
 
 L_im, L_sil: mean squared RGB / mask errors averaged over the frames in use; R_E: the deformation energy of
 the simulated frames with the stiffnesses detached (it regularizes the geometry, not the material); R_F:
-the external accelerations' components across the viewing directions of the CURRENT simulated vertices
-(or the template's); L_track: the distance of the projected vertices to their optical-flow point tracks
+the size of the external accelerations beyond the constant one, their component along the viewing
+directions of the CURRENT simulated vertices (or the template's) weighted by shape.force_along_weight (the
+paper: 0); L_track: the distance of the projected vertices to their optical-flow point tracks
 (saft.reconstruct.tracks; not in the paper).
 The optimized parameters are log10 Y, B, S (clamped to their ranges), a constant acceleration (gravity +
-mean wind) and per-vertex per-frame accelerations, each with its own clipped Adam.
+mean wind), per-vertex per-frame accelerations and a per-frame affine acceleration field over the
+template (saft.reconstruct.force_field; not in the paper), each with its own clipped Adam.
 """
 
 from __future__ import annotations
