@@ -110,3 +110,14 @@ def test_force_regularizer_weights_the_component_along_the_viewing_ray(weight, e
     positions = torch.tensor([[[0.0, 0.0, 1.0]]], dtype=torch.float64)
     camera = torch.zeros(3, dtype=torch.float64)
     assert float(force_regularizer(accel, positions, camera, weight)) == pytest.approx(expected)
+
+
+def test_the_along_ray_weight_of_r_f_depends_on_whether_vertices_are_pinned():
+    from saft.reconstruct.shape_phase import along_ray_weight
+
+    cfg = ShapeConfig(force_along_weight=0.8, force_along_weight_pinned=0.1)
+    free, _ = _sim_and_state(cfg)
+    held, _ = _sim_and_state(cfg, pinned=np.arange(5))
+    assert along_ray_weight(cfg, free) == 0.8
+    assert along_ray_weight(cfg, held) == 0.1
+    assert along_ray_weight(ShapeConfig(), free) == 1.0 and along_ray_weight(ShapeConfig(), held) == 0.0

@@ -95,10 +95,13 @@ class ShapeConfig:
     # external acceleration (the paper's supplement and the reference's code).
     force_target: Literal["vertex", "total"] = "vertex"
     # Weight of the force's component along the viewing ray in R_F (0 = the paper: only the part
-    # perpendicular to the ray is penalised; 1 = the whole vector). 1: with the affine field below, a
-    # free component along the rays let the whole cloth drift in depth over R1's last frames (last-frame
-    # CD2 2.41 against 0.84; BENCHMARKS.md, "Affine acceleration field").
+    # perpendicular to the ray is penalised; 1 = the whole vector), in scenes with nothing pinned and in
+    # scenes with pinned vertices. Without pins nothing else holds the cloth's depth: with the affine field
+    # below and a free component along the rays, R1's cloth drifted in depth over its last frames (last-frame
+    # CD2 2.41 against 0.84). With pins the penalty only hindered: pinned benchmark scenes 1.5-6x worse
+    # (BENCHMARKS.md, "Affine acceleration field").
     force_along_weight: float = 1.0
+    force_along_weight_pinned: float = 0.0
     # Point tracks (saft.reconstruct.tracks; not in the paper): λ of the track loss (0 = off, the paper),
     # the forward-backward check in pixels, and the Huber threshold in pixels beyond which a residual
     # counts linearly. With the backtracking and the final decay below, R1's mean CD2 falls from 2.6-3.0

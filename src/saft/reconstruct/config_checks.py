@@ -37,6 +37,7 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "shape.lambda_energy": (0, INF, True),
     "shape.lambda_force": (0, INF, True),
     "shape.force_along_weight": (0, 1, True),
+    "shape.force_along_weight_pinned": (0, 1, True),
     "shape.lr_stiffness": (0, INF, True),
     "shape.lr_const_accel": (0, INF, True),
     "shape.lr_vertex_accel": (0, INF, True),

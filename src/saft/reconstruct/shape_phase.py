@@ -7,8 +7,8 @@ Each epoch simulates from the template through the frames in use and renders the
 L_im, L_sil: mean squared RGB / mask errors averaged over the frames in use; R_E: the deformation energy of
 the simulated frames with the stiffnesses detached (it regularizes the geometry, not the material); R_F:
 the size of the external accelerations beyond the constant one, their component along the viewing
-directions of the CURRENT simulated vertices (or the template's) weighted by shape.force_along_weight (the
-paper: 0); L_track: the distance of the projected vertices to their optical-flow point tracks
+directions of the CURRENT simulated vertices (or the template's) weighted by shape.force_along_weight (or
+force_along_weight_pinned when vertices are pinned; the paper: 0); L_track: the distance of the projected vertices to their optical-flow point tracks
 (saft.reconstruct.tracks; not in the paper).
 The optimized parameters are log10 Y, B, S (clamped to their ranges), a constant acceleration (gravity +
 mean wind), per-vertex per-frame accelerations and a per-frame affine acceleration field over the
@@ -264,6 +264,11 @@ def _per_frame(params: ShapeParams) -> list[torch.Tensor]:
     return [params.vertex_accel] + ([params.field_accel] if params.field_accel is not None else [])
 
 
+def along_ray_weight(cfg: ShapeConfig, sim: ShapeSimulator) -> float:
+    """R_F's weight on the acceleration's component along the viewing ray: pins hold the depth, or nothing does."""
+    return cfg.force_along_weight if sim.pinned is None else cfg.force_along_weight_pinned
+
+
 def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, cfg: ShapeConfig,
                         texture: torch.Tensor, frames: int, tracks: VertexTracks | None = None,
                         start: int = 0) -> dict[str, float]:
@@ -304,7 +309,7 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
         if cfg.force_target == "total":
             accel = accel + params.const_accel
         dir_pos = positions[1:] if cfg.force_directions == "current" else sim.template.expand(n_win - 1, -1, -1)
-        force = force_regularizer(accel, dir_pos, cam_center, cfg.force_along_weight)
+        force = force_regularizer(accel, dir_pos, cam_center, along_ray_weight(cfg, sim))
     else:
         force = torch.zeros((), dtype=positions.dtype, device=positions.device)
     if tracks is not None:
