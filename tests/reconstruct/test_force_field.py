@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from saft.reconstruct.config import PhysicsConfig, ShapeConfig
-from saft.reconstruct.force_field import affine_basis, field_accelerations
+from saft.reconstruct.force_field import affine_basis, field_accelerations, total_accelerations
 
 
 def test_affine_basis_is_the_centred_scaled_template():
@@ -28,6 +28,9 @@ def test_field_accelerations_match_the_affine_formula():
     k, v = 2, 5
     expected = coeffs[k, 0] + basis[v, 1] * coeffs[k, 1] + basis[v, 2] * coeffs[k, 2] + basis[v, 3] * coeffs[k, 3]
     assert torch.allclose(a[k, v], expected)
+    d_f = torch.randn(3, 7, 3, generator=gen, dtype=torch.float64)
+    assert torch.equal(total_accelerations(d_f, coeffs, basis), d_f + a)
+    assert total_accelerations(d_f, None, basis) is d_f
 
 
 def _sim_and_state(cfg, frames=6, pinned=None):

@@ -32,4 +32,13 @@ def field_accelerations(coeffs: torch.Tensor, basis: torch.Tensor) -> torch.Tens
     return torch.einsum("vb,fbc->fvc", basis.to(coeffs), coeffs)
 
 
-__all__ = ["affine_basis", "field_accelerations"]
+def total_accelerations(vertex_accel: torch.Tensor, field_coeffs: torch.Tensor | None,
+                        basis: torch.Tensor) -> torch.Tensor:
+    """What acts on the cloth beyond the constant acceleration: D_f (F, V, 3) plus the field when it is on
+    (coefficients (F, 4, 3), or None)."""
+    if field_coeffs is None:
+        return vertex_accel
+    return vertex_accel + field_accelerations(field_coeffs, basis)
+
+
+__all__ = ["affine_basis", "field_accelerations", "total_accelerations"]

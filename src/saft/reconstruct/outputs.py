@@ -8,7 +8,7 @@ import numpy as np
 import torch
 
 from saft.io_utils import atomic_save_npy, atomic_write_json, atomic_write_text, write_image
-from saft.reconstruct.force_field import affine_basis, field_accelerations
+from saft.reconstruct.force_field import affine_basis, total_accelerations
 from saft.result import MESH_MTL, mesh_path, mtl_text
 from saft.scene import Scene, write_obj
 from saft.scene.camera import Camera
@@ -32,10 +32,9 @@ def write_shape_outputs(out_dir: Path, scene: Scene, camera: Camera, positions: 
         write_obj(mesh_path(out_dir, i), scene.template, verts, comment=f"saft frame {i} (world frame, metres)",
                   mtllib=MESH_MTL)
     atomic_write_json(out_dir / "params.json", params)
-    forces = raw_params["vertex_accel"]
-    if raw_params.get("field_accel") is not None:   # what acts on the cloth: D_f plus the affine field
-        basis = affine_basis(torch.as_tensor(scene.template.vertices, dtype=forces.dtype))
-        forces = forces + field_accelerations(raw_params["field_accel"], basis)
+    accel = raw_params["vertex_accel"]
+    forces = total_accelerations(accel, raw_params.get("field_accel"),
+                                 affine_basis(torch.as_tensor(scene.template.vertices, dtype=accel.dtype)))
     atomic_save_npy(out_dir / "forces.npy", forces.numpy().astype(np.float32))
     atomic_write_json(out_dir / "scene.json", {
         "name": scene.name, "source": str(scene.source) if scene.source else None,

@@ -8,8 +8,8 @@ L_im, L_sil: mean squared RGB / mask errors averaged over the frames in use; R_E
 the simulated frames with the stiffnesses detached (it regularizes the geometry, not the material); R_F:
 the size of the external accelerations beyond the constant one, their component along the viewing
 directions of the CURRENT simulated vertices (or the template's) weighted by shape.force_along_weight (or
-force_along_weight_pinned when vertices are pinned; the paper: 0); L_track: the distance of the projected vertices to their optical-flow point tracks
-(saft.reconstruct.tracks; not in the paper).
+force_along_weight_pinned when vertices are pinned; the paper: 0); L_track: the distance of the projected
+vertices to their optical-flow point tracks (saft.reconstruct.tracks; not in the paper).
 The optimized parameters are log10 Y, B, S (clamped to their ranges), a constant acceleration (gravity +
 mean wind), per-vertex per-frame accelerations and a per-frame affine acceleration field over the
 template (saft.reconstruct.force_field; not in the paper), each with its own clipped Adam.
@@ -27,7 +27,7 @@ from saft.physics import ClothTopology, PhysicsParams, deformation_energy, rollo
 from saft.reconstruct.config import PhysicsConfig, ShapeConfig
 from saft.reconstruct.frame_schedule import FrameSchedule, window_first_frame
 from saft.reconstruct.context import PhaseContext
-from saft.reconstruct.force_field import affine_basis, field_accelerations
+from saft.reconstruct.force_field import affine_basis, total_accelerations
 from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_loss
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
 from saft.reconstruct.step_guard import StepGuard
@@ -60,10 +60,8 @@ class ShapeParams:
     def accelerations(self, basis: torch.Tensor, lo: int, hi: int) -> torch.Tensor:
         """(hi - lo, V, 3) external accelerations beyond the constant one, frames lo..hi-1: D_f plus the
         affine field when it is on."""
-        a = self.vertex_accel[lo:hi]
-        if self.field_accel is not None:
-            a = a + field_accelerations(self.field_accel[lo:hi], basis)
-        return a
+        field = self.field_accel[lo:hi] if self.field_accel is not None else None
+        return total_accelerations(self.vertex_accel[lo:hi], field, basis)
 
 
 @dataclass
@@ -179,9 +177,10 @@ class ShapeSimulator:
 
     def simulate(self, params: ShapeParams, num_frames: int) -> torch.Tensor:
         """(num_frames, V, 3) positions, frame 0 = template."""
-        return rollout(self.topology, self.template, None, self._physics(params, params.accelerations(self.field_basis, 0, num_frames - 1)),
-                       num_frames=num_frames, substeps=self.phys.substeps, frame_dt=self.frame_dt,
-                       pinned=self.pinned, hessian=self.phys.hessian)
+        accel = params.accelerations(self.field_basis, 0, num_frames - 1)
+        return rollout(self.topology, self.template, None, self._physics(params, accel), num_frames=num_frames,
+                       substeps=self.phys.substeps, frame_dt=self.frame_dt, pinned=self.pinned,
+                       hessian=self.phys.hessian)
 
     def simulate_from(self, params: ShapeParams, start: int, num_frames: int, x0: torch.Tensor | None = None,
                       v0: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
