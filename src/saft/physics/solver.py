@@ -29,6 +29,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 import torch
 
+from saft.physics import pcg_numba as _pn
+
 
 def _csr(crow, col, data, n):
     with warnings.catch_warnings():
@@ -55,9 +57,16 @@ class ReusedLUSolver:
 
     def __init__(self, indptr: np.ndarray, indices: np.ndarray, tol: float = 1e-6, max_iter: int = 60,
                  refactor_after: int = 15, precond_float32: bool = True, stats: SolveStats | None = None,
-                 keep_factors_bytes: int = 256 * 2**20, drop_tol: float = 1e-4):
+                 keep_factors_bytes: int = 256 * 2**20, drop_tol: float = 1e-4, backend: str = "numba"):
         self.indptr = indptr.astype(np.int32)
         self.indices = indices.astype(np.int32)
+        if backend not in ("numba", "scipy"):
+            raise ValueError(f"backend must be 'numba' or 'scipy', got {backend!r}")
+        # "numba": the whole CG loop in one compiled call (pcg_numba); "scipy": the same algorithm in
+        # numpy/scipy with SuperLU's triangular solves (the reference, for tests and comparisons)
+        self.backend = backend
+        self._uptr = indptr.astype(np.uint32)
+        self._uidx = indices.astype(np.uint32)
         self.n = len(indptr) - 1
         self.tol = tol
         self.max_iter = max_iter
@@ -66,6 +75,7 @@ class ReusedLUSolver:
         self.drop_tol = drop_tol  # ILU drop tolerance; 0: complete LU preconditioner
         self.lu = None
         self.lu_f32 = False
+        self.pre = None  # the factor's triangles as pcg_numba arrays (None: pivoted LU, or scipy backend)
         self.incomplete = False  # the current factor is an ILU (not usable for a direct solve)
         self.stats = stats if stats is not None else SolveStats()
         # factors made during the forward pass, by substep: the adjoint solve of substep i (same matrix
@@ -84,24 +94,25 @@ class ReusedLUSolver:
         self.adjoint_mode = select
         if select and self.factors and i is not None:
             j = min(self.factors, key=lambda k: abs(k - i))
-            self.lu, self.lu_f32 = self.factors[j]
+            self.lu, self.lu_f32, self.pre = self.factors[j]
 
     def _keep(self):
         if self.step is None:
             return
-        nbytes = self._factor_nbytes(self.lu, self.lu_f32)
+        nbytes = self._factor_nbytes(self.lu, self.lu_f32, self.pre)
         if self._factor_bytes + nbytes > self.keep_factors_bytes:
             # over budget: thin out the kept factors (every other one), keeping the spread over time
             for k in sorted(self.factors)[1::2]:
-                lu, f32 = self.factors.pop(k)
-                self._factor_bytes -= self._factor_nbytes(lu, f32)
+                entry = self.factors.pop(k)
+                self._factor_bytes -= self._factor_nbytes(*entry)
             if self._factor_bytes + nbytes > self.keep_factors_bytes:
                 return
-        self.factors[self.step] = (self.lu, self.lu_f32)
+        self.factors[self.step] = (self.lu, self.lu_f32, self.pre)
         self._factor_bytes += nbytes
 
-    def _factor_nbytes(self, lu, f32):
-        return lu.nnz * (4 + (4 if f32 else 8))
+    def _factor_nbytes(self, lu, f32, pre=None):
+        extra = 0 if pre is None else sum(a.nbytes for a in pre)
+        return lu.nnz * (4 + (4 if f32 else 8)) + extra
 
     def matrix(self, data: np.ndarray) -> sp.csr_matrix:
         return sp.csr_matrix((data, self.indices, self.indptr), shape=(self.n, self.n), copy=False)
@@ -123,6 +134,11 @@ class ReusedLUSolver:
         else:
             self.lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                                 options=dict(SymmetricMode=True))
+        # the triangles for the numba CG (symmetric permutations only: not the pivoted LU, which is only
+        # used for direct solves)
+        self.pre = None
+        if self.backend == "numba" and not pivoting:
+            self.pre = _pn.factors_from_superlu(self.lu, self.lu_f32)
         self.stats.factorizations += 1
         self._keep()
 
@@ -179,6 +195,17 @@ class ReusedLUSolver:
         return self.lu.solve(r.astype(np.float32) if self.lu_f32 else r).astype(np.float64)
 
     def _pcg(self, A, b, x0, atol):
+        """CG from x0 preconditioned by the current factor: (x, iterations), x None on failure."""
+        if self.pre is None:
+            return self._pcg_reference(A, b, x0, atol)
+        x = np.zeros(self.n) if x0 is None else np.array(x0, dtype=np.float64)
+        status, its = _pn.pcg(self._uptr, self._uidx, np.ascontiguousarray(A.data, dtype=np.float64),
+                              np.ascontiguousarray(b, dtype=np.float64), x, float(atol), self.max_iter,
+                              *self.pre)
+        self.stats.iterations += its
+        return (x if status == 0 else None), its
+
+    def _pcg_reference(self, A, b, x0, atol):
         lu = self
         x = np.zeros_like(b) if x0 is None else x0.copy()
         r = b - A @ x
@@ -232,6 +259,7 @@ class CholmodPCGSolver(ReusedLUSolver):
     """
 
     def __init__(self, indptr, indices, **kw):
+        kw.setdefault("backend", "scipy")  # CG in numpy around CHOLMOD's solves (pre stays None)
         super().__init__(indptr, indices, **kw)
         self.precond_float32 = False
         key = (self.n, len(self.indices), hash(self.indptr.tobytes()), hash(self.indices.tobytes()))
@@ -245,9 +273,9 @@ class CholmodPCGSolver(ReusedLUSolver):
             ent = _CHOLMOD_SYMBOLIC[self._key] = [F, None]
         return ent
 
-    def _factor_nbytes(self, lu, f32):
+    def _factor_nbytes(self, lu, f32, pre=None):
         if isinstance(lu, spla.SuperLU):
-            return super()._factor_nbytes(lu, f32)
+            return super()._factor_nbytes(lu, f32, pre)
         return self._nnz_l * 12
 
     def factorize(self, data: np.ndarray, pivoting: bool = False):
@@ -262,7 +290,7 @@ class CholmodPCGSolver(ReusedLUSolver):
         if ent[1] is None:
             ent[1] = F.L().nnz
         self._nnz_l = ent[1]
-        self.lu, self.lu_f32 = F, False
+        self.lu, self.lu_f32, self.pre = F, False, None
         self.stats.factorizations += 1
         self._keep()
 
