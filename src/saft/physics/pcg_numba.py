@@ -35,6 +35,57 @@ def _row_dot(ptr, idx, val, k, v):
 
 
 @njit(cache=_CACHE, nogil=True)
+def _spmv(aptr, aidx, aval, blocked, v, out):
+    """out = A v for A in CSR. ``blocked``: the pattern is made of 3x3 blocks (the three rows of a vertex
+    share their columns, which come in triples 3u, 3u+1, 3u+2; see ``is_blocked``): each column index
+    and each x[3u..3u+2] is then read once for nine entries."""
+    n = v.shape[0]
+    if not blocked:
+        for i in range(n):
+            out[i] = _row_dot(aptr, aidx, aval, i, v)
+        return
+    for i in range(0, n, 3):
+        b0 = aptr[i]
+        b1 = aptr[i + 1]
+        b2 = aptr[i + 2]
+        m = b1 - b0
+        y0 = 0.0
+        y1 = 0.0
+        y2 = 0.0
+        for k in range(0, m, 3):
+            c = aidx[b0 + k]
+            x0 = v[c]
+            x1 = v[c + 1]
+            x2 = v[c + 2]
+            y0 += aval[b0 + k] * x0 + aval[b0 + k + 1] * x1 + aval[b0 + k + 2] * x2
+            y1 += aval[b1 + k] * x0 + aval[b1 + k + 1] * x1 + aval[b1 + k + 2] * x2
+            y2 += aval[b2 + k] * x0 + aval[b2 + k + 1] * x1 + aval[b2 + k + 2] * x2
+        out[i] = y0
+        out[i + 1] = y1
+        out[i + 2] = y2
+
+
+def is_blocked(indptr, indices) -> bool:
+    """Whether a CSR pattern is made of 3x3 blocks in the layout ``_spmv`` uses: n a multiple of 3, the
+    three rows 3v, 3v+1, 3v+2 with the same columns, those in runs 3u, 3u+1, 3u+2 (saft's layout)."""
+    indptr = np.asarray(indptr, dtype=np.int64)
+    indices = np.asarray(indices, dtype=np.int64)
+    n = len(indptr) - 1
+    if n % 3:
+        return False
+    cnt = np.diff(indptr)
+    if np.any(cnt[0::3] % 3) or not (np.array_equal(cnt[0::3], cnt[1::3]) and np.array_equal(cnt[0::3], cnt[2::3])):
+        return False
+    row = np.repeat(np.arange(n), cnt)
+    pos = np.arange(len(indices)) - indptr[row]  # position within the row
+    first = indptr[row - row % 3] + pos  # the same position in the vertex's first row
+    if not np.array_equal(indices, indices[first]):
+        return False
+    c = indices[indptr[row] + pos - pos % 3]  # the first column of each entry's triple
+    return bool(np.array_equal(indices, c + pos % 3) and np.all(c % 3 == 0))
+
+
+@njit(cache=_CACHE, nogil=True)
 def _precond(perm, inv, uptr, uidx, uval, dinv, r, w, z):
     """z = M^{-1} r with M = P^T (I + U)^T D (I + U) P; w is scratch (length n).
 
@@ -75,11 +126,11 @@ def precond_apply(perm, inv, uptr, uidx, uval, dinv, r):
 
 
 @njit(cache=_CACHE, nogil=True)
-def pcg(aptr, aidx, aval, b, x, atol, max_iter,
+def pcg(aptr, aidx, aval, blocked, b, x, atol, max_iter,
         perm, inv, uptr, uidx, uval, dinv):
     """Preconditioned CG for A x = b (A in CSR, float64), from the start ``x`` (updated in place).
 
-    Same algorithm as the reference ``ReusedLUSolver._pcg_reference``: flexible (Polak-Ribiere) beta, stop
+    ``blocked``: see ``is_blocked``. Same algorithm as the reference ``ReusedLUSolver._pcg_reference``: flexible (Polak-Ribiere) beta, stop
     when ||r|| <= atol. Returns (status, iterations): status 0 converged, 1 breakdown (r.z or p.Ap not
     positive: A or the preconditioner indefinite), 2 max_iter reached.
     """
@@ -89,9 +140,10 @@ def pcg(aptr, aidx, aval, b, x, atol, max_iter,
     p = np.empty(n)
     ap = np.empty(n)
     w = np.empty(n)
+    _spmv(aptr, aidx, aval, blocked, x, ap)
     rr = 0.0
     for i in range(n):
-        ri = b[i] - _row_dot(aptr, aidx, aval, i, x)
+        ri = b[i] - ap[i]
         r[i] = ri
         rr += ri * ri
     if np.sqrt(rr) <= atol:
@@ -104,11 +156,10 @@ def pcg(aptr, aidx, aval, b, x, atol, max_iter,
     for it in range(max_iter):
         if not rz > 0.0:
             return 1, it
+        _spmv(aptr, aidx, aval, blocked, p, ap)
         pap = 0.0
         for i in range(n):
-            a = _row_dot(aptr, aidx, aval, i, p)
-            ap[i] = a
-            pap += p[i] * a
+            pap += p[i] * ap[i]
         if not pap > 0.0:
             return 1, it
         alpha = rz / pap

@@ -67,6 +67,7 @@ class ReusedLUSolver:
         self.backend = backend
         self._uptr = indptr.astype(np.uint32)
         self._uidx = indices.astype(np.uint32)
+        self._blocked = _pn.is_blocked(self.indptr, self.indices)
         self.n = len(indptr) - 1
         self.tol = tol
         self.max_iter = max_iter
@@ -199,7 +200,7 @@ class ReusedLUSolver:
         if self.pre is None:
             return self._pcg_reference(A, b, x0, atol)
         x = np.zeros(self.n) if x0 is None else np.array(x0, dtype=np.float64)
-        status, its = _pn.pcg(self._uptr, self._uidx, np.ascontiguousarray(A.data, dtype=np.float64),
+        status, its = _pn.pcg(self._uptr, self._uidx, np.ascontiguousarray(A.data, dtype=np.float64), self._blocked,
                               np.ascontiguousarray(b, dtype=np.float64), x, float(atol), self.max_iter,
                               *self.pre)
         self.stats.iterations += its
