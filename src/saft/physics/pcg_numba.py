@@ -74,7 +74,8 @@ def is_blocked(indptr, indices) -> bool:
     if n % 3:
         return False
     cnt = np.diff(indptr)
-    if np.any(cnt[0::3] % 3) or not (np.array_equal(cnt[0::3], cnt[1::3]) and np.array_equal(cnt[0::3], cnt[2::3])):
+    c0 = cnt[0::3]
+    if np.any(c0 % 3) or not (np.array_equal(c0, cnt[1::3]) and np.array_equal(c0, cnt[2::3])):
         return False
     row = np.repeat(np.arange(n), cnt)
     pos = np.arange(len(indices)) - indptr[row]  # position within the row
@@ -130,8 +131,8 @@ def pcg(aptr, aidx, aval, blocked, b, x, atol, max_iter,
         perm, inv, uptr, uidx, uval, dinv):
     """Preconditioned CG for A x = b (A in CSR, float64), from the start ``x`` (updated in place).
 
-    ``blocked``: see ``is_blocked``. Same algorithm as the reference ``ReusedLUSolver._pcg_reference``: flexible (Polak-Ribiere) beta, stop
-    when ||r|| <= atol. Returns (status, iterations): status 0 converged, 1 breakdown (r.z or p.Ap not
+    ``blocked``: see ``is_blocked``. Same algorithm as the reference ``ReusedLUSolver._pcg_reference``:
+    flexible (Polak-Ribiere) beta, stop when ||r|| <= atol. Returns (status, iterations): status 0 converged, 1 breakdown (r.z or p.Ap not
     positive: A or the preconditioner indefinite), 2 max_iter reached.
     """
     n = b.shape[0]
