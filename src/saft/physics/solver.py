@@ -151,13 +151,12 @@ class ReusedLUSolver:
 
     def solve(self, data: np.ndarray, b: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
         self.stats.solves += 1
-        A = self.matrix(data)
         bnorm = float(np.linalg.norm(b))
         if bnorm == 0.0:
             return np.zeros_like(b)
         atol = self.tol * bnorm
         if self.lu is not None:
-            x, its = self._pcg(A, b, x0, atol)
+            x, its = self._pcg(data, b, x0, atol)
             if x is not None:
                 if its > self._refactor_threshold():
                     # also in the adjoint pass: kept under this substep, the new factor is then the nearest
@@ -166,14 +165,15 @@ class ReusedLUSolver:
                 return x
             self.stats.fallbacks += 1
         self.factorize(data)
-        x, its = self._pcg(A, b, x0, atol)  # with the fresh factor: a few iterations
+        x, its = self._pcg(data, b, x0, atol)  # with the fresh factor: a few iterations
         if x is not None:
             return x
         if self.incomplete:  # a direct solve needs the complete factor
             self.factorize(data, complete=True)
-            x, its = self._pcg(A, b, x0, atol)
+            x, its = self._pcg(data, b, x0, atol)
             if x is not None:
                 return x
+        A = self.matrix(data)
         x = self._solve_lu(b)
         for _ in range(4):  # iterative refinement
             r = b - A @ x
@@ -194,22 +194,23 @@ class ReusedLUSolver:
     def _refactor_threshold(self) -> int:
         # A fixed iteration count, never a measured time: decisions that depend on timings would make
         # rollouts (and so whole reconstructions) differ from run to run. 15: on R1 CG settles at ~12
-        # iterations however old the ILU is (a fresh one still needs ~5), so a refactorisation (~25 ms, about
-        # 200 iterations of the numba CG) pays only when the matrix has drifted further than that. (20 saves
-        # ~3 % of the solver time on the R1 benchmark by factorising once; kept at 15 for robustness.)
+        # iterations however old the ILU is (a fresh one still needs ~5), so a refactorisation (~17 ms, about
+        # 220 iterations of the numba CG at 78 us) pays only when the matrix has drifted further than that.
+        # (20 would factorise once on the R1 benchmark instead of 7 times, 5612 iterations instead of 4933:
+        # ~50 ms less of ~0.5 s; kept at 15, which refreshes the factor where the motion is larger.)
         return self.refactor_after
 
     def _solve_lu(self, r):
         return self.lu.solve(r.astype(np.float32) if self.lu_f32 else r).astype(np.float64)
 
-    def _pcg(self, A, b, x0, atol):
+    def _pcg(self, data, b, x0, atol):
         """CG from x0 preconditioned by the current factor: (x, iterations), x None on failure."""
         if self.pre is None:
-            return self._pcg_reference(A, b, x0, atol)
+            return self._pcg_reference(self.matrix(data), b, x0, atol)
         x = np.zeros(self.n) if x0 is None else np.array(x0, dtype=np.float64)
-        status, its = _pn.pcg(self._uptr, self._uidx, np.ascontiguousarray(A.data, dtype=np.float64), self._blocked,
-                              np.ascontiguousarray(b, dtype=np.float64), x, float(atol), self.max_iter,
-                              *self.pre)
+        status, its = _pn.pcg(self._uptr, self._uidx, np.ascontiguousarray(data, dtype=np.float64),
+                              self._blocked, np.ascontiguousarray(b, dtype=np.float64), x, float(atol),
+                              self.max_iter, *self.pre)
         self.stats.iterations += its
         return (x if status == 0 else None), its
 
