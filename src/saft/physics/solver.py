@@ -145,7 +145,10 @@ class ReusedLUSolver:
         # used for direct solves)
         self.pre = None
         if self.backend == "numba" and not pivoting:
-            self.pre = _pn.factors_from_superlu(self.lu, self.lu_f32)
+            try:
+                self.pre = _pn.factors_from_superlu(self.lu, self.lu_f32)
+            except ValueError:  # a zero pivot: CG around SuperLU's own solves (then the usual fallbacks)
+                self.pre = None
         self.stats.factorizations += 1
         self._keep()
 
