@@ -62,7 +62,7 @@ class ReusedLUSolver:
     """CPU: CG preconditioned by a reused sparse LU factorisation, refactorised when needed."""
 
     def __init__(self, indptr: np.ndarray, indices: np.ndarray, tol: float = 1e-6, max_iter: int = 60,
-                 refactor_after: int = 15, precond_float32: bool = True, stats: SolveStats | None = None,
+                 refactor_after: int = 20, precond_float32: bool = True, stats: SolveStats | None = None,
                  keep_factors_bytes: int = 256 * 2**20, drop_tol: float = 1e-3, backend: str = "numba"):
         self.indptr = indptr.astype(np.int32)
         self.indices = indices.astype(np.int32)
@@ -196,11 +196,12 @@ class ReusedLUSolver:
 
     def _refactor_threshold(self) -> int:
         # A fixed iteration count, never a measured time: decisions that depend on timings would make
-        # rollouts (and so whole reconstructions) differ from run to run. 15: on R1 CG settles at ~12
-        # iterations however old the ILU is (a fresh one still needs ~5), so a refactorisation (~17 ms, about
-        # 220 iterations of the numba CG at 78 us) pays only when the matrix has drifted further than that.
-        # (20 would factorise once on the R1 benchmark instead of 7 times, 5612 iterations instead of 4933:
-        # ~50 ms less of ~0.5 s; kept at 15, which refreshes the factor where the motion is larger.)
+        # rollouts (and so whole reconstructions) differ from run to run. 20: on R1 CG settles at ~12
+        # iterations however old the ILU is (a fresh one still needs ~5), and a refactorisation (~17 ms) costs
+        # about 220 iterations of the numba CG (78 us), so it pays only when the matrix has drifted well
+        # beyond that. R1, 50 frames, fwd+bwd, iterations / factorisations / cost at 78 us + 17 ms each, for
+        # thresholds 15 -> 20: benchmark forcing (a_vert 0.5) 4933 / 7 / 505 ms -> 5612 / 1 / 455 ms;
+        # twice stronger 4579 / 30 / 867 ms -> 5978 / 12 / 670 ms; a_vert 0.1: 3199 / 1 either way.
         return self.refactor_after
 
     def _solve_lu(self, r):
@@ -272,6 +273,7 @@ class CholmodPCGSolver(ReusedLUSolver):
 
     def __init__(self, indptr, indices, **kw):
         kw.setdefault("backend", "scipy")  # CG in numpy around CHOLMOD's solves (pre stays None)
+        kw.setdefault("refactor_after", 15)  # its own cost ratio (factorisation ~85 iterations), as before
         super().__init__(indptr, indices, **kw)
         self.precond_float32 = False
         key = (self.n, len(self.indices), hash(self.indptr.tobytes()), hash(self.indices.tobytes()))
