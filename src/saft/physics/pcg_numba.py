@@ -35,34 +35,99 @@ def _row_dot(ptr, idx, val, k, v):
 
 
 @njit(cache=_CACHE, nogil=True)
-def _spmv(aptr, aidx, aval, blocked, v, out):
-    """out = A v for A in CSR. ``blocked``: the pattern is made of 3x3 blocks (the three rows of a vertex
-    share their columns, which come in triples 3u, 3u+1, 3u+2; see ``is_blocked``): each column index
-    and each x[3u..3u+2] is then read once for nine entries."""
+def _spmv(aptr, aidx, aval, mode, v, out):
+    """out = A v. ``mode`` 0: A in CSR (aptr, aidx, aval). 1: the same CSR arrays, made of 3x3 blocks (the
+    three rows of a vertex share their columns, which come in triples 3u, 3u+1, 3u+2; see ``is_blocked``):
+    each column index and each v[3u..3u+2] is read once for nine entries. 2: A symmetric, stored as its
+    upper 3x3 blocks (``sym_blocks``): aptr over vertex rows, aidx the block columns (vertices, the
+    diagonal block first in each row), aval nine row-major values per block; each off-diagonal block is
+    read once for both of its products, half the memory traffic of mode 1."""
     n = v.shape[0]
-    if not blocked:
+    if mode == 0:
         for i in range(n):
             out[i] = _row_dot(aptr, aidx, aval, i, v)
         return
-    for i in range(0, n, 3):
-        b0 = aptr[i]
-        b1 = aptr[i + 1]
-        b2 = aptr[i + 2]
-        m = b1 - b0
-        y0 = 0.0
-        y1 = 0.0
-        y2 = 0.0
-        for k in range(0, m, 3):
-            c = aidx[b0 + k]
-            x0 = v[c]
-            x1 = v[c + 1]
-            x2 = v[c + 2]
-            y0 += aval[b0 + k] * x0 + aval[b0 + k + 1] * x1 + aval[b0 + k + 2] * x2
-            y1 += aval[b1 + k] * x0 + aval[b1 + k + 1] * x1 + aval[b1 + k + 2] * x2
-            y2 += aval[b2 + k] * x0 + aval[b2 + k + 1] * x1 + aval[b2 + k + 2] * x2
-        out[i] = y0
-        out[i + 1] = y1
-        out[i + 2] = y2
+    if mode == 1:
+        for i in range(0, n, 3):
+            b0 = aptr[i]
+            b1 = aptr[i + 1]
+            b2 = aptr[i + 2]
+            m = b1 - b0
+            y0 = 0.0
+            y1 = 0.0
+            y2 = 0.0
+            for k in range(0, m, 3):
+                c = aidx[b0 + k]
+                x0 = v[c]
+                x1 = v[c + 1]
+                x2 = v[c + 2]
+                y0 += aval[b0 + k] * x0 + aval[b0 + k + 1] * x1 + aval[b0 + k + 2] * x2
+                y1 += aval[b1 + k] * x0 + aval[b1 + k + 1] * x1 + aval[b1 + k + 2] * x2
+                y2 += aval[b2 + k] * x0 + aval[b2 + k + 1] * x1 + aval[b2 + k + 2] * x2
+            out[i] = y0
+            out[i + 1] = y1
+            out[i + 2] = y2
+        return
+    for i in range(n):
+        out[i] = 0.0
+    for vv in range(aptr.shape[0] - 1):
+        i = 3 * vv
+        x0 = v[i]
+        x1 = v[i + 1]
+        x2 = v[i + 2]
+        a = aptr[vv]
+        q = 9 * a
+        y0 = aval[q] * x0 + aval[q + 1] * x1 + aval[q + 2] * x2
+        y1 = aval[q + 3] * x0 + aval[q + 4] * x1 + aval[q + 5] * x2
+        y2 = aval[q + 6] * x0 + aval[q + 7] * x1 + aval[q + 8] * x2
+        for bb in range(a + 1, aptr[vv + 1]):
+            c = 3 * aidx[bb]
+            q = 9 * bb
+            u0 = v[c]
+            u1 = v[c + 1]
+            u2 = v[c + 2]
+            y0 += aval[q] * u0 + aval[q + 1] * u1 + aval[q + 2] * u2
+            y1 += aval[q + 3] * u0 + aval[q + 4] * u1 + aval[q + 5] * u2
+            y2 += aval[q + 6] * u0 + aval[q + 7] * u1 + aval[q + 8] * u2
+            out[c] += aval[q] * x0 + aval[q + 3] * x1 + aval[q + 6] * x2
+            out[c + 1] += aval[q + 1] * x0 + aval[q + 4] * x1 + aval[q + 7] * x2
+            out[c + 2] += aval[q + 2] * x0 + aval[q + 5] * x1 + aval[q + 8] * x2
+        out[i] += y0
+        out[i + 1] += y1
+        out[i + 2] += y2
+
+
+@njit(cache=_CACHE, nogil=True)
+def gather(data, src):
+    out = np.empty(src.shape[0])
+    for k in range(src.shape[0]):
+        out[k] = data[src[k]]
+    return out
+
+
+def sym_blocks(indptr, indices):
+    """For a pattern with ``is_blocked``: (bptr, bcol, src) of its upper 3x3 blocks for ``_spmv`` mode 2,
+    bptr over vertex rows, bcol the block columns (the diagonal block first in each row; None if a
+    diagonal block is missing), src the positions in the CSR data of each block's nine values."""
+    indptr = np.asarray(indptr, dtype=np.int64)
+    indices = np.asarray(indices, dtype=np.int64)
+    nv = (len(indptr) - 1) // 3
+    r0 = indptr[0:-1:3]  # start of each vertex's first row
+    cnt = indptr[1::3] - r0
+    v = np.repeat(np.arange(nv), cnt // 3)
+    nb = cnt // 3
+    e = np.repeat(r0, nb) + 3 * (np.arange(nb.sum()) - np.repeat(np.cumsum(nb) - nb, nb))  # each block's entry
+    u = indices[e] // 3
+    up = u >= v
+    v, e, u = v[up], e[up], u[up]
+    bptr = np.zeros(nv + 1, np.int64)
+    np.cumsum(np.bincount(v, minlength=nv), out=bptr[1:])
+    if not np.array_equal(u[bptr[:-1]], np.arange(nv)):
+        return None
+    k = e - r0[v]  # offset of the block in its rows
+    rows = indptr[3 * v[:, None] + np.arange(3)[None, :]]  # (blocks, 3): start of each of the three rows
+    src = (rows[:, :, None] + k[:, None, None] + np.arange(3)[None, None, :]).reshape(-1)
+    return bptr.astype(np.uint32), u.astype(np.uint32), src.astype(np.uint32)
 
 
 def is_blocked(indptr, indices) -> bool:
@@ -127,13 +192,13 @@ def precond_apply(perm, inv, uptr, uidx, uval, dinv, r):
 
 
 @njit(cache=_CACHE, nogil=True)
-def pcg(aptr, aidx, aval, blocked, b, x, atol, max_iter,
+def pcg(aptr, aidx, aval, mode, b, x, atol, max_iter,
         perm, inv, uptr, uidx, uval, dinv):
     """Preconditioned CG for A x = b (A in CSR, float64), from the start ``x`` (updated in place).
 
-    ``blocked``: see ``is_blocked``. Same algorithm as the reference ``ReusedLUSolver._pcg_reference``:
-    flexible (Polak-Ribiere) beta, stop when ||r|| <= atol. Returns (status, iterations): status 0 converged, 1 breakdown (r.z or p.Ap not
-    positive: A or the preconditioner indefinite), 2 max_iter reached.
+    ``mode``: the storage of A, see ``_spmv``. Same algorithm as the reference ``ReusedLUSolver._pcg_reference``:
+    flexible (Polak-Ribiere) beta, stop when ||r|| <= atol. Returns (status, iterations): status 0
+    converged, 1 breakdown (r.z or p.Ap not positive: A or the preconditioner indefinite), 2 max_iter.
     """
     n = b.shape[0]
     r = np.empty(n)
@@ -141,7 +206,7 @@ def pcg(aptr, aidx, aval, blocked, b, x, atol, max_iter,
     p = np.empty(n)
     ap = np.empty(n)
     w = np.empty(n)
-    _spmv(aptr, aidx, aval, blocked, x, ap)
+    _spmv(aptr, aidx, aval, mode, x, ap)
     rr = 0.0
     for i in range(n):
         ri = b[i] - ap[i]
@@ -157,7 +222,7 @@ def pcg(aptr, aidx, aval, blocked, b, x, atol, max_iter,
     for it in range(max_iter):
         if not rz > 0.0:
             return 1, it
-        _spmv(aptr, aidx, aval, blocked, p, ap)
+        _spmv(aptr, aidx, aval, mode, p, ap)
         pap = 0.0
         for i in range(n):
             pap += p[i] * ap[i]

@@ -73,7 +73,9 @@ class ReusedLUSolver:
         self.backend = backend
         self._uptr = indptr.astype(np.uint32)
         self._uidx = indices.astype(np.uint32)
-        self._blocked = _pn.is_blocked(self.indptr, self.indices)
+        # the storage of A in the numba CG (pcg_numba._spmv): symmetric upper 3x3 blocks when the pattern has
+        # saft's vertex-block layout (A is symmetric, values included), plain CSR otherwise
+        self._sym = _pn.sym_blocks(self.indptr, self.indices) if _pn.is_blocked(indptr, indices) else None
         self.n = len(indptr) - 1
         self.tol = tol
         self.max_iter = max_iter
@@ -212,9 +214,14 @@ class ReusedLUSolver:
         if self.pre is None:
             return self._pcg_reference(self.matrix(data), b, x0, atol)
         x = np.zeros(self.n) if x0 is None else np.array(x0, dtype=np.float64)
-        status, its = _pn.pcg(self._uptr, self._uidx, np.ascontiguousarray(data, dtype=np.float64),
-                              self._blocked, np.ascontiguousarray(b, dtype=np.float64), x, float(atol),
-                              self.max_iter, *self.pre)
+        data = np.ascontiguousarray(data, dtype=np.float64)
+        if self._sym is not None:
+            bptr, bcol, src = self._sym
+            mat = (bptr, bcol, _pn.gather(data, src), 2)
+        else:
+            mat = (self._uptr, self._uidx, data, 0)
+        status, its = _pn.pcg(*mat, np.ascontiguousarray(b, dtype=np.float64), x, float(atol), self.max_iter,
+                              *self.pre)
         self.stats.iterations += its
         return (x if status == 0 else None), its
 
