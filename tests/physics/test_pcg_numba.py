@@ -82,6 +82,16 @@ def test_precond_of_incomplete_factor_is_symmetric_u_factorisation():
     assert abs(M - M.T).max() <= 1e-12 * abs(M).max()
 
 
+@pytest.mark.parametrize("mode", ["projected", "exact"])
+def test_system_matrix_is_symmetric(mode):
+    """The numba CG multiplies by A's upper blocks only, so A must be symmetric: bit for bit with the
+    projected Hessian (the kernels mirror the upper triangle), to rounding (1e-16 relative, far below any
+    CG tolerance) with the exact one."""
+    _, _, _, Am = _system(mode, compress=0.97)
+    asym = abs(Am - Am.T).max()
+    assert asym == 0.0 if mode == "projected" else asym <= 1e-14 * abs(Am).max()
+
+
 def test_matvec_storages_match_scipy():
     """CSR, block CSR and symmetric upper-block products agree with scipy; the solver uses the last."""
     t, A, _, Am = _system()

@@ -10,8 +10,9 @@ reached, or a breakdown because A is indefinite) the current A is factorised afr
 uses the same machinery with the factors kept from the forward pass.
 
 The CG loop runs as one numba call (``pcg_numba.pcg``, backend "numba"): a mat-vec on A's upper 3x3
-blocks (A must be symmetric bit for bit, as the kernels assemble it: they mirror the upper triangle), fused
-vector updates, and as preconditioner the symmetric M = P^T U^T D^-1 U P made from the factorisation's U alone
+blocks (A must be symmetric: bit for bit with the projected Hessian, whose upper triangle the kernels
+mirror; to 1e-16 relative with the exact one, far below any CG tolerance), fused vector updates, and as
+preconditioner the symmetric M = P^T U^T D^-1 U P made from the factorisation's U alone
 (SuperLU's ILU keeps about twice as many entries in L as in U; with U alone CG needs as many iterations
 and an application costs a third). backend="scipy" is the reference: the same CG in numpy around
 SuperLU's own triangular solves with L and U.
