@@ -33,7 +33,7 @@ _EPS_LEN = 1e-12
 _JIT = dict(cache=True, fastmath=False, nogil=True)  # njit: nopython; fastmath off: deterministic
 
 
-@njit(**_JIT)
+@njit(inline="always", **_JIT)
 def _hinge_geom(x, n1, v, n2, e1, e2, u1, u2):
     """Fills e1, e2, u1, u2 (3,) for hinge (n1, v, n2); returns (l1, l2, q)."""
     for d in range(3):
@@ -52,25 +52,26 @@ def _hinge_geom(x, n1, v, n2, e1, e2, u1, u2):
     return l1, l2, q
 
 
-@njit(**_JIT)
-def _hess_q(u1, u2, q, l1, l2, a1, a2, r1, r2):
-    """(grad^2 q) applied to the edge-space vector (a1, a2), into r1, r2 (energy._hess_q)."""
+@njit(inline="always", **_JIT)
+def _hess_q(u1, u2, q, c11, c12, c22, a1, a2, r1, r2):
+    """(grad^2 q) applied to the edge-space vector (a1, a2), into r1, r2 (energy._hess_q; c11, c12, c22 =
+    1 / (l1 l1), 1 / (l1 l2), 1 / (l2 l2): multiplications instead of divisions, equal to rounding)."""
     u1a1 = u1[0] * a1[0] + u1[1] * a1[1] + u1[2] * a1[2]
     u2a1 = u2[0] * a1[0] + u2[1] * a1[1] + u2[2] * a1[2]
     u1a2 = u1[0] * a2[0] + u1[1] * a2[1] + u1[2] * a2[2]
     u2a2 = u2[0] * a2[0] + u2[1] * a2[1] + u2[2] * a2[2]
     for d in range(3):
-        r1[d] = (-u2a1 * u1[d] - u1a1 * u2[d] - q * a1[d] + 3.0 * q * u1a1 * u1[d]) / (l1 * l1) + (
+        r1[d] = (-u2a1 * u1[d] - u1a1 * u2[d] - q * a1[d] + 3.0 * q * u1a1 * u1[d]) * c11 + (
             a2[d] - u1a2 * u1[d] - u2a2 * u2[d] + q * u2a2 * u1[d]
-        ) / (l1 * l2)
-        r2[d] = (-u1a2 * u2[d] - u2a2 * u1[d] - q * a2[d] + 3.0 * q * u2a2 * u2[d]) / (l2 * l2) + (
+        ) * c12
+        r2[d] = (-u1a2 * u2[d] - u2a2 * u1[d] - q * a2[d] + 3.0 * q * u2a2 * u2[d]) * c22 + (
             a1[d] - u1a1 * u1[d] - u2a1 * u2[d] + q * u1a1 * u2[d]
-        ) / (l1 * l2)
+        ) * c12
 
 
-@njit(**_JIT)
+@njit(inline="always", **_JIT)
 def _hinge_scalars(q, rest, bw, B, S):
-    """(kh, dtheta, dth, tau, s2) of one hinge, as ElementEval."""
+    """(kh, dtheta, dth, tau, s2, sqrt(s2)) of one hinge, as ElementEval."""
     cq = _C * q
     if cq < -_C:
         cq = -_C
@@ -78,9 +79,10 @@ def _hinge_scalars(q, rest, bw, B, S):
         cq = _C
     s2 = 1.0 - cq * cq
     theta = np.arccos(cq)
-    dth = -_C / np.sqrt(s2)
+    rs2 = np.sqrt(s2)
+    dth = -_C / rs2
     kh = B * bw + S * (1.0 - bw)
-    return kh, theta - rest, dth, dth * dth, s2
+    return kh, theta - rest, dth, dth * dth, s2, rs2
 
 
 @njit(**_JIT)
@@ -135,7 +137,7 @@ def step_forward(x, edges, rest_len, hinges, rest_angle, bend_w, spring_up, hing
         v = hinges[k, 1]
         n2 = hinges[k, 2]
         l1, l2, q = _hinge_geom(x, n1, v, n2, ev1, ev2, u1, u2)
-        kh, dtheta, dth, tau, s2 = _hinge_scalars(q, rest_angle[k], bend_w[k], B, S)
+        kh, dtheta, dth, tau, s2, rs2 = _hinge_scalars(q, rest_angle[k], bend_w[k], B, S)
         phi_q = kh * dtheta * dth
         phi_qq = kh * tau
         for d in range(3):
@@ -240,10 +242,10 @@ def step_adjoint(x, lam, w, edges, rest_len, hinges, rest_angle, bend_w, Y, B, S
         n2 = hinges[k, 2]
         l1, l2, q = _hinge_geom(x, n1, v, n2, ev1, ev2, u1, u2)
         bw = bend_w[k]
-        kh, dtheta, dth, tau, s2 = _hinge_scalars(q, rest_angle[k], bw, B, S)
+        kh, dtheta, dth, tau, s2, rs2 = _hinge_scalars(q, rest_angle[k], bw, B, S)
         phi_q = kh * dtheta * dth
         phi_qq = kh * tau
-        d2th = -_C3 * q / (s2 * np.sqrt(s2))
+        d2th = -_C3 * q / (s2 * rs2)
         phi_qq_exact = kh * (tau + dtheta * d2th)
         gl = 0.0
         gw = 0.0
@@ -257,8 +259,11 @@ def step_adjoint(x, lam, w, edges, rest_len, hinges, rest_angle, bend_w, Y, B, S
         gl = (g1[0] * lam1[0] + g1[1] * lam1[1] + g1[2] * lam1[2]) + (
             g2[0] * lam2[0] + g2[1] * lam2[1] + g2[2] * lam2[2])
         gw = (g1[0] * w1[0] + g1[1] * w1[1] + g1[2] * w1[2]) + (g2[0] * w2[0] + g2[1] * w2[1] + g2[2] * w2[2])
-        _hess_q(u1, u2, q, l1, l2, lam1, lam2, hl1, hl2)
-        _hess_q(u1, u2, q, l1, l2, w1, w2, hw1, hw2)
+        c11 = 1.0 / (l1 * l1)
+        c12 = 1.0 / (l1 * l2)
+        c22 = 1.0 / (l2 * l2)
+        _hess_q(u1, u2, q, c11, c12, c22, lam1, lam2, hl1, hl2)
+        _hess_q(u1, u2, q, c11, c12, c22, w1, w2, hw1, hw2)
         dtau = 2.0 * _C4 * q / (s2 * s2)
         a = kh * dtau * gl * gw
         b = kh * tau
@@ -294,10 +299,12 @@ class NumbaGeo:
         self.bend_w = np_(t.bend_w).astype(np.float64)
         # per element, its unique Hessian entries' positions in the upper-triangle storage (pair-major in
         # the topology, element-major here)
-        self.spring_up = np.ascontiguousarray(np_(t.spring_up_idx).reshape(21, E).T)
-        self.hinge_up = np.ascontiguousarray(np_(t.hinge_up_idx).reshape(45, H).T)
-        self.diag_up = np_(t.diag_up_idx)
-        self.up_of = np_(t.up_of)
+        # the index maps are the bulk of the forward kernel's memory traffic: int32 when they fit
+        it = np.int32 if t.nnz < 2**31 else np.int64
+        self.spring_up = np.ascontiguousarray(np_(t.spring_up_idx).reshape(21, E).T.astype(it))
+        self.hinge_up = np.ascontiguousarray(np_(t.hinge_up_idx).reshape(45, H).T.astype(it))
+        self.diag_up = np_(t.diag_up_idx).astype(it)
+        self.up_of = np_(t.up_of).astype(it)
         self.nnz_up = int(t.nnz_up)
 
 
@@ -311,9 +318,9 @@ def warmup():
     hinges = np.array([[0, 1, 2]], dtype=np.int64)
     one = np.ones(1)
     rl = np.ones(2)
-    up2 = np.zeros((2, 21), dtype=np.int64)
-    up1 = np.zeros((1, 45), dtype=np.int64)
-    idx = np.zeros(9, dtype=np.int64)
+    up2 = np.zeros((2, 21), dtype=np.int32)
+    up1 = np.zeros((1, 45), dtype=np.int32)
+    idx = np.zeros(9, dtype=np.int32)
     step_forward(x, edges, rl, hinges, one, one, up2, up1, idx, idx, np.ones(9), 1.0, 1.0, 1.0, 1.0, 1)
     step_adjoint(x, x, x, edges, rl, hinges, one, one, 1.0, 1.0, 1.0, 1.0)
     return time.perf_counter() - t0
