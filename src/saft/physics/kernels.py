@@ -139,10 +139,12 @@ class StepKernels:
         """(dE/dx as (V, 3), A data (nnz,)) at positions x."""
         g = self.nb
         if g is not None:
-            grad, A = _numba_mod.step_forward(
+            A = torch.empty(self.nnz, dtype=torch.float64)
+            grad = _numba_mod.step_forward(
                 _np(x), g.edges, g.rest_len, g.hinges, g.rest_angle, g.bend_w, g.spring_up, g.hinge_up,
-                g.diag_up, g.up_of, _np(mass_diag), float(Y), float(B), float(S), float(hh), g.nnz_up)
-            return torch.from_numpy(grad), torch.from_numpy(A)
+                g.diag_up, g.up_of, _np(mass_diag), float(Y), float(B), float(S), float(hh), g.nnz_up,
+                A.numpy())
+            return torch.from_numpy(grad), A
         return self._call("fwd", _step_forward, x, Y, B, S, hh, mass_diag, diag_idx)
 
     def adjoint(self, x, lam, v1, Y, B, S, h):
