@@ -6,7 +6,8 @@ Why hand-written: on a cloth of a few thousand elements every torch op costs mor
 allocation (a few microseconds each, some fifty ops per kernel) than in arithmetic, and the temporaries
 of the elements-last formulation go through memory several times; ``torch.compile`` removes some of that
 but needs a C++ toolchain and tens of seconds of compilation per mesh size. Here one pass over the
-elements does it all, about 5-10x faster than the eager torch path on the R1 template.
+elements does it all: on the R1 template (1984 springs, 5764 hinges) the forward kernel is about 8x and the
+adjoint about 3x faster than the eager torch path (0.55 vs 4.7 ms and 0.63 vs 1.8 ms, warm cache).
 
 Compiled with ``nopython``, ``cache=True`` (the machine code is kept in ``__pycache__``; the first use
 on a fresh checkout compiles for a few seconds) and without ``fastmath``, so results are deterministic
@@ -319,6 +320,7 @@ def warmup():
     up2 = np.zeros((2, 21), dtype=np.int32)
     up1 = np.zeros((1, 45), dtype=np.int32)
     idx = np.zeros(9, dtype=np.int32)
-    step_forward(x, edges, rl, hinges, one, one, up2, up1, idx, idx, np.ones(9), 1.0, 1.0, 1.0, 1.0, 1, np.empty(9))
+    step_forward(x, edges, rl, hinges, one, one, up2, up1, idx, idx, np.ones(9), 1.0, 1.0, 1.0, 1.0, 1,
+                 np.empty(9))
     step_adjoint(x, x, x, edges, rl, hinges, one, one, 1.0, 1.0, 1.0, 1.0)
     return time.perf_counter() - t0
