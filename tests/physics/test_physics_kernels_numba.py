@@ -101,3 +101,18 @@ def test_rollout_numba_matches_torch(pinned):
         res[backend] = [pos.detach(), xx.grad, vv.grad] + [a.grad for a in pp.tensors()]
     for a, b in zip(res["numba"], res["torch"]):
         assert torch.allclose(a, b, rtol=1e-9, atol=1e-9 * b.abs().max().item())
+
+
+def test_without_numba_falls_back_to_torch(monkeypatch):
+    """If numba cannot be loaded the torch kernels run, with one warning."""
+    import saft.physics.kernels as K
+
+    def broken():
+        raise ImportError("no numba here")
+
+    monkeypatch.setattr(K.kernels_numba, "load", broken)
+    monkeypatch.setattr(K, "_numba_failed", False)
+    t, _, _, _ = _case(grid_mesh(3), 1.0, 0)
+    with pytest.warns(RuntimeWarning, match="numba element kernels unavailable"):
+        assert StepKernels(t, "projected").backend == "torch"
+    assert StepKernels(t, "projected").backend == "torch"  # no second warning needed, still torch

@@ -27,6 +27,7 @@ import warnings
 
 import torch
 
+from saft.physics import kernels_numba
 from saft.physics.energy import ElementEval
 from saft.physics.topology import _FAST_MAP_FIELDS
 
@@ -83,23 +84,20 @@ def backend_requested(backend: str | None = None) -> str:
     return b
 
 
-_numba_mod = None
 _numba_failed = False
 
 
-def _numba():
-    """The numba kernel module, or None (with one warning) if numba cannot be imported."""
-    global _numba_mod, _numba_failed
-    if _numba_mod is None and not _numba_failed:
+def _numba_ready() -> bool:
+    """Whether the numba kernels can run (jits them on first use; one warning if numba is unusable)."""
+    global _numba_failed
+    if not _numba_failed:
         try:
-            from saft.physics import kernels_numba
-
-            _numba_mod = kernels_numba
+            kernels_numba.load()
         except Exception as exc:  # noqa: BLE001 - numba missing or broken: the torch path is always there
             _numba_failed = True
             warnings.warn(f"saft.physics: numba element kernels unavailable ({exc!r:.200}); using torch",
                           RuntimeWarning, stacklevel=3)
-    return _numba_mod
+    return not _numba_failed
 
 
 class StepKernels:
@@ -115,8 +113,8 @@ class StepKernels:
         b = backend_requested(backend)
         numba_ok = t.device.type == "cpu" and t.dtype == torch.float64 and mode == "projected"
         self.nb = None
-        if numba_ok and (b == "numba" or (b == "auto" and not want_compile)) and _numba() is not None:
-            self.nb = _numba_mod.NumbaGeo(t)
+        if numba_ok and (b == "numba" or (b == "auto" and not want_compile)) and _numba_ready():
+            self.nb = kernels_numba.NumbaGeo(t)
         self.backend = "numba" if self.nb is not None else "torch"
         self.use_compile = (self.nb is None and want_compile and mode == "projected"
                             and not _compile_failed)
@@ -140,7 +138,7 @@ class StepKernels:
         g = self.nb
         if g is not None:
             A = torch.empty(self.nnz, dtype=torch.float64)
-            grad = _numba_mod.step_forward(
+            grad = kernels_numba.step_forward(
                 _np(x), g.edges, g.rest_len, g.hinges, g.rest_angle, g.bend_w, g.spring_up, g.hinge_up,
                 g.diag_up, g.up_of, _np(mass_diag), float(Y), float(B), float(S), float(hh), g.nnz_up,
                 A.numpy())
@@ -151,7 +149,7 @@ class StepKernels:
         """(position-adjoint increment (V, 3), d/dY, d/dB, d/dS pieces (0-dim, times the stiffness))."""
         g = self.nb
         if g is not None:
-            out, gY, gB, gS = _numba_mod.step_adjoint(
+            out, gY, gB, gS = kernels_numba.step_adjoint(
                 _np(x), _np(lam), _np(v1), g.edges, g.rest_len, g.hinges, g.rest_angle, g.bend_w,
                 float(Y), float(B), float(S), float(h))
             f = dict(dtype=x.dtype)

@@ -13,6 +13,10 @@ Compiled with ``nopython``, ``cache=True`` (the machine code is kept in ``__pyca
 on a fresh checkout compiles for a few seconds) and without ``fastmath``, so results are deterministic
 and equal the torch reference to rounding (summation order differs). Single-threaded.
 
+numba itself is imported, and the functions below jitted, on the first call of ``load()`` (the first
+rollout that uses them): importing saft.physics stays as fast as without numba. Until then the module
+holds the plain Python functions.
+
 The system matrix is assembled as the torch path does: into the upper-triangle storage of
 ``ClothTopology`` (positions ``spring_up_idx`` / ``hinge_up_idx``; 21 unique entries per spring, 45 per
 Gauss-Newton hinge), then expanded to the full symmetric CSR data with ``up_of``, so A is exactly
@@ -21,8 +25,10 @@ symmetric.
 
 from __future__ import annotations
 
+import threading
+import time
+
 import numpy as np
-from numba import njit
 
 from saft.physics.topology import ARCCOS_GUARD
 
@@ -32,9 +38,30 @@ _C4 = ARCCOS_GUARD**4
 _EPS_LEN = 1e-12
 
 _JIT = dict(cache=True, fastmath=False, nogil=True)  # njit: nopython; fastmath off: deterministic
+_HELPERS = ("_hinge_geom", "_hess_q", "_hinge_scalars")  # inlined into the kernels (numba IR level)
+_KERNELS = ("step_forward", "step_adjoint")
+_loaded = False
+_lock = threading.Lock()
 
 
-@njit(inline="always", **_JIT)
+def load():
+    """Jit the kernels (from the on-disk cache when there is one): replaces this module's plain Python
+    functions by numba dispatchers, helpers first (the kernels resolve them as globals when compiled).
+    Idempotent; raises ImportError without numba."""
+    global _loaded
+    with _lock:
+        if _loaded:
+            return
+        from numba import njit  # heavy: only when the numba kernels are used
+
+        g = globals()
+        for name in _HELPERS:
+            g[name] = njit(inline="always", **_JIT)(g[name])
+        for name in _KERNELS:
+            g[name] = njit(**_JIT)(g[name])
+        _loaded = True
+
+
 def _hinge_geom(x, n1, v, n2, e1, e2, u1, u2):
     """Fills e1, e2, u1, u2 (3,) for hinge (n1, v, n2); returns (l1, l2, q)."""
     for d in range(3):
@@ -53,7 +80,6 @@ def _hinge_geom(x, n1, v, n2, e1, e2, u1, u2):
     return l1, l2, q
 
 
-@njit(inline="always", **_JIT)
 def _hess_q(u1, u2, q, c11, c12, c22, a1, a2, r1, r2):
     """(grad^2 q) applied to the edge-space vector (a1, a2), into r1, r2 (energy._hess_q; c11, c12, c22 =
     1 / (l1 l1), 1 / (l1 l2), 1 / (l2 l2): multiplications instead of divisions, equal to rounding)."""
@@ -70,7 +96,6 @@ def _hess_q(u1, u2, q, c11, c12, c22, a1, a2, r1, r2):
         ) * c12
 
 
-@njit(inline="always", **_JIT)
 def _hinge_scalars(q, rest, bw, B, S):
     """(kh, dtheta, dth, tau, s2, sqrt(s2)) of one hinge, as ElementEval."""
     cq = _C * q
@@ -86,7 +111,6 @@ def _hinge_scalars(q, rest, bw, B, S):
     return kh, theta - rest, dth, dth * dth, s2, rs2
 
 
-@njit(**_JIT)
 def step_forward(x, edges, rest_len, hinges, rest_angle, bend_w, spring_up, hinge_up, diag_up, up_of,
                  mass_diag, Y, B, S, hh, nnz_up, A):
     """dE/dx (V, 3); writes the data of A = M + hh K (nnz,) into ``A``, K the projected Hessian."""
@@ -168,7 +192,6 @@ def step_forward(x, edges, rest_len, hinges, rest_angle, bend_w, spring_up, hing
     return grad
 
 
-@njit(**_JIT)
 def step_adjoint(x, lam, w, edges, rest_len, hinges, rest_angle, bend_w, Y, B, S, h):
     """(-h (d2E/dx2) lam - h^2 d/dx (lam^T K(x) w) as (V, 3) (true Hessian in the first term, projected K
     in the second), gY, gB, gS) as ElementEval.adjoint_increment + kernels._step_adjoint."""
@@ -308,10 +331,10 @@ class NumbaGeo:
 
 
 def warmup():
-    """Compile (or load from the cache) both kernels on a tiny mesh; returns the seconds it took."""
-    import time
-
+    """Import numba and compile (or load from the cache) both kernels on a tiny mesh; returns the seconds it
+    took."""
     t0 = time.perf_counter()
+    load()
     x = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0]])
     edges = np.array([[0, 1], [1, 2]], dtype=np.int64)
     hinges = np.array([[0, 1, 2]], dtype=np.int64)
