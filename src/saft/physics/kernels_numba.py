@@ -54,11 +54,17 @@ def load():
             return
         from numba import njit  # heavy: only when the numba kernels are used
 
+        def jit(fn, **kw):
+            try:
+                return njit(**_JIT, **kw)(fn)
+            except RuntimeError:  # no writable cache location (read-only install): compile every process
+                return njit(**{**_JIT, "cache": False}, **kw)(fn)
+
         g = globals()
         for name in _HELPERS:
-            g[name] = njit(inline="always", **_JIT)(g[name])
+            g[name] = jit(g[name], inline="always")
         for name in _KERNELS:
-            g[name] = njit(**_JIT)(g[name])
+            g[name] = jit(g[name])
         _loaded = True
 
 
