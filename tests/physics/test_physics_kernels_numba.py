@@ -116,3 +116,26 @@ def test_without_numba_falls_back_to_torch(monkeypatch):
     with pytest.warns(RuntimeWarning, match="numba element kernels unavailable"):
         assert StepKernels(t, "projected").backend == "torch"
     assert StepKernels(t, "projected").backend == "torch"  # no second warning needed, still torch
+
+
+def test_nan_inside_the_numba_path_raises(monkeypatch):
+    """A NaN from the numba forward kernel (third substep of frame 1) is caught like the torch path's."""
+    from saft.errors import SimulationError
+    from saft.physics import kernels_numba
+
+    N = 4
+    v, q = grid_mesh(4, wave=0.02)
+    t = ClothTopology.from_quads(v, q)
+    kernels_numba.load()
+    orig = kernels_numba.step_forward
+    calls = {"n": 0}
+
+    def poisoned(*args):
+        calls["n"] += 1
+        g = orig(*args)
+        return g * float("nan") if calls["n"] == 4 + 3 else g
+
+    monkeypatch.setattr(kernels_numba, "step_forward", poisoned)
+    with pytest.raises(SimulationError, match=r"frame 1, substep 2"):
+        rollout(t, t.template, None, PhysicsParams.default(), num_frames=N, kernels="numba")
+    assert calls["n"] == 4 + 3
