@@ -6,7 +6,7 @@ Reports wall and CPU (process) seconds, medians of --repeats runs, one table row
 Last line (machine-readable): physics_fwd_bwd_s_32x32_50f=<seconds> (median wall, best thread count).
 
     python benchmarks/bench_physics.py [--repeats 3] [--sizes 16x16,32x32,64x64] [--threads 1,2]
-                                       [--frames 50] [--compile {0,1,env}]
+                                       [--frames 50] [--compile {0,1,env}] [--kernels {auto,numba,torch,env}]
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ def load_case(name: str):
     return f"{name} (grid)", v, q
 
 
-def run_once(topo, frames, backward: bool, seed=0, compile=None):
+def run_once(topo, frames, backward: bool, seed=0, compile=None, kernels=None):
     """One rollout (and backward); returns (wall s, CPU s, solver stats)."""
     V = topo.num_vertices
     g = torch.Generator().manual_seed(seed)
@@ -60,7 +60,7 @@ def run_once(topo, frames, backward: bool, seed=0, compile=None):
     w = torch.randn(frames, V, 3, generator=g, dtype=torch.float64)
     stats = {}
     c0, t0 = time.process_time(), time.perf_counter()
-    pos = rollout(topo, topo.template, None, p, num_frames=frames, stats=stats, compile=compile)
+    pos = rollout(topo, topo.template, None, p, num_frames=frames, stats=stats, compile=compile, kernels=kernels)
     if backward:
         (pos * w).sum().backward()
     return time.perf_counter() - t0, time.process_time() - c0, stats
@@ -82,12 +82,15 @@ def main():
     ap.add_argument("--threads", default="1,2", help="comma list of torch thread counts")
     ap.add_argument("--compile", choices=("0", "1", "env"), default="env",
                     help="torch.compile the element kernels (env: SAFT_PHYSICS_COMPILE, off by default)")
+    ap.add_argument("--kernels", choices=("auto", "numba", "torch", "env"), default="env",
+                    help="element kernel backend (env: SAFT_PHYSICS_KERNELS, auto by default: numba on CPU)")
     args = ap.parse_args()
     compile_flag = None if args.compile == "env" else args.compile == "1"
+    kern = None if args.kernels == "env" else args.kernels
     threads = [int(t) for t in args.threads.split(",")]
     print(f"saft.physics benchmark: {args.frames} frames x 4 substeps, float64, median of {args.repeats} runs, "
-          f"compile={compile_flag if compile_flag is not None else 'env'}; wall = elapsed, cpu = process time "
-          f"(the machine may be shared: cpu is the steadier number)")
+          f"compile={compile_flag if compile_flag is not None else 'env'}, kernels={args.kernels}; wall = elapsed, "
+          f"cpu = process time (the machine may be shared: cpu is the steadier number)")
     hdr = (f"{'case':16s} {'V':>5s} {'thr':>3s} {'fwd_wall':>9s} {'fwd_cpu':>8s} {'fb_wall':>8s} {'fb_cpu':>7s}"
            f"  solver (last fwd+bwd run)")
     print(hdr)
@@ -98,9 +101,10 @@ def main():
         topo = ClothTopology.from_quads(verts, quads)
         for nt in threads:
             torch.set_num_threads(nt)
-            run_once(topo, 3, True, compile=compile_flag)  # warm-up (and compilation, if on)
-            fwd = [run_once(topo, args.frames, False, compile=compile_flag) for _ in range(args.repeats)]
-            fb = [run_once(topo, args.frames, True, compile=compile_flag) for _ in range(args.repeats)]
+            kw = dict(compile=compile_flag, kernels=kern)
+            run_once(topo, 3, True, **kw)  # warm-up (and compilation, if on)
+            fwd = [run_once(topo, args.frames, False, **kw) for _ in range(args.repeats)]
+            fb = [run_once(topo, args.frames, True, **kw) for _ in range(args.repeats)]
             med = statistics.median
             fw_w, fw_c = med(r[0] for r in fwd), med(r[1] for r in fwd)
             fb_w, fb_c = med(r[0] for r in fb), med(r[1] for r in fb)

@@ -183,6 +183,7 @@ def test_nan_raises_simulation_error_naming_frame_and_substep(monkeypatch):
         return g * float("nan") if calls["n"] == 4 + 3 else g
 
     monkeypatch.setattr(R.ElementEval, "grad", poisoned)
+    monkeypatch.setenv("SAFT_PHYSICS_KERNELS", "torch")  # ElementEval is what the torch kernels call
     with pytest.raises(SimulationError, match=r"frame 1, substep 2"):
         rollout(t, x0, v0, p, num_frames=N)
     monkeypatch.undo()
@@ -326,6 +327,7 @@ def test_kernel_compile_failure_falls_back_to_eager(monkeypatch):
     counters are reported as bwd_* and the adjoint reuses the forward's kept factors."""
     import saft.physics.kernels as K
 
+    monkeypatch.setenv("SAFT_PHYSICS_KERNELS", "torch")  # compile=False would otherwise pick numba
     t, x0, v0, p, W = _setup()
     for val in p.tensors():
         val.requires_grad_(True)

@@ -102,7 +102,7 @@ class _Sim:
     """Everything a rollout needs besides the differentiable inputs."""
 
     def __init__(self, topology, num_frames, substeps, frame_dt, pinned, pinned_positions, hessian, solver, tol,
-                 compile=None):
+                 compile=None, kernels=None):
         t = topology
         self.t = t
         self.V = t.num_vertices
@@ -113,7 +113,7 @@ class _Sim:
         self.solver_kind = solver
         self.tol = tol
         self.keep_matrices_bytes = 512 * 2**20
-        self.kernels = StepKernels(t, hessian, compile=compile)
+        self.kernels = StepKernels(t, hessian, compile=compile, backend=kernels)
         self.stats = SolveStats()
         self.stats_out = None  # the caller's stats dict (backward counters are added as bwd_*)
         self.use_numpy = (solver in ("lu", "cholmod")) or (solver == "auto" and t.device.type == "cpu")
@@ -371,6 +371,7 @@ def rollout(
     tol: float = 1e-6,
     stats: dict | None = None,
     compile: bool | None = None,
+    kernels: str | None = None,
 ) -> torch.Tensor:
     """Simulate ``num_frames`` video frames from (x0, v0); returns positions (num_frames, V, 3) with
     positions[0] = x0. Differentiable w.r.t. x0, v0 and every tensor in ``params``.
@@ -385,6 +386,8 @@ def rollout(
     the backward's are added as bwd_* when it runs).
     compile: torch.compile the per-substep element kernels (None: the SAFT_PHYSICS_COMPILE environment
     variable, off by default; falls back to eager with a warning if compilation fails).
+    kernels: element kernel backend, "auto" (numba on CPU float64 with the projected Hessian unless compile
+    is on, else torch), "numba" or "torch" (None: the SAFT_PHYSICS_KERNELS environment variable, "auto").
     Raises SimulationError (naming frame and substep) on NaN/inf.
     """
     t = topology
@@ -406,7 +409,8 @@ def rollout(
             )
         # longer is fine (frames added progressively): the unused frames get zero gradient
         a_vert = a_vert[: num_frames - 1]
-    sim = _Sim(t, num_frames, substeps, frame_dt, pinned, pinned_positions, hessian, solver, tol, compile)
+    sim = _Sim(t, num_frames, substeps, frame_dt, pinned, pinned_positions, hessian, solver, tol, compile,
+               kernels)
     sim.stats_out = stats
     f = dict(device=dev, dtype=dt)
 
