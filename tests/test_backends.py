@@ -11,7 +11,7 @@ from saft.cli import main
 def test_info_lists_backends(capsys):
     assert main(["info"]) == 0
     out = capsys.readouterr().out
-    for name in ("Mitsuba 3:", "nvdiffrast:", "CHOLMOD:", "Ray:", "viser:"):
+    for name in ("Mitsuba 3:", "nvdiffrast:", "numba:", "CHOLMOD:", "Ray:", "viser:"):
         assert name in out
     for dist, name in (("ray", "Ray"), ("viser", "viser"), ("mitsuba", "Mitsuba 3")):
         if importlib.util.find_spec(dist) is not None:

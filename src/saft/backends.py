@@ -2,6 +2,7 @@
 
     Mitsuba 3    the appearance phase (variants compiled in; the one for this machine's device is probed)
     nvdiffrast   the CUDA rasterizer (else saft's PyTorch rasterizer)
+    numba        the cloth simulation's CPU kernels (element forces and Hessians, the preconditioned CG loop)
     CHOLMOD      scikit-sparse: an opt-in preconditioner of the cloth simulation (Python API, solver="cholmod")
     Ray          `saft batch`
     viser        `saft view`
@@ -69,6 +70,7 @@ def backend_lines() -> list[str]:
     return [
         f"Mitsuba 3:  {_mitsuba()}",
         f"nvdiffrast: {_nvdiffrast()}",
+        f"numba:      {_package('numba', 'the cloth simulation on the CPU', 'pip install numba')}",
         f"CHOLMOD:    {_cholmod()}",
         f"Ray:        {_package('ray', 'saft batch', 'pip install ray; install.sh installs it')}",
         f"viser:      {_package('viser', 'saft view', 'pip install viser')}",

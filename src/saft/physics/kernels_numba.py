@@ -13,9 +13,9 @@ Compiled with ``nopython``, ``cache=True`` (the machine code is kept in ``__pyca
 on a fresh checkout compiles for a few seconds) and without ``fastmath``, so results are deterministic
 and equal the torch reference to rounding (summation order differs). Single-threaded.
 
-numba itself is imported, and the functions below jitted, on the first call of ``load()`` (the first
-rollout that uses them): importing saft.physics stays as fast as without numba. Until then the module
-holds the plain Python functions.
+The functions below are jitted on the first call of ``load()`` (the first rollout that uses them); until
+then the module holds the plain Python functions. (numba itself is imported with saft.physics anyway,
+by the solver's ``pcg_numba``.)
 
 The system matrix is assembled as the torch path does: into the upper-triangle storage of
 ``ClothTopology`` (positions ``spring_up_idx`` / ``hinge_up_idx``; 21 unique entries per spring, 45 per
