@@ -362,6 +362,32 @@ def test_estimate_is_logged_before_the_first_epoch(native_scene, tmp_path, caplo
     assert any(m.startswith("large template: 16 vertices") for m in messages)
 
 
+def test_estimate_leaves_out_one_off_first_call_costs(native_scene, tmp_path, caplog, monkeypatch):
+    # the first rollout of a process compiles (or loads) the numba kernels: seconds that do not recur and
+    # must not be multiplied by every substep of the run (R1 was estimated at 4.3 h for a 10-minute run)
+    import time as _time
+
+    from saft.reconstruct import estimate, reconstruct
+    from saft.reconstruct.config import load_saft_config
+
+    calls = []
+    real = estimate.rollout
+
+    def slow_first(*args, **kw):
+        if not calls:
+            _time.sleep(1.0)
+        calls.append(1)
+        return real(*args, **kw)
+
+    monkeypatch.setattr(estimate, "rollout", slow_first)
+    seen = {}
+    real_measure = estimate.measure_run
+    monkeypatch.setattr(estimate, "measure_run", lambda *a, **k: seen.setdefault("est", real_measure(*a, **k)))
+    cfg = load_saft_config(None, TINY[4::2] + ['run.device="cpu"'])
+    reconstruct(load_scene(native_scene), cfg, tmp_path / "out", quiet=True)
+    assert len(calls) >= 2 and seen["est"].transition_seconds < 0.5
+
+
 def test_appearance_interrupt_keeps_every_finished_epoch(native_scene, tmp_path, capsys):
     from saft.reconstruct import reconstruct
     from saft.reconstruct.checkpoint import load_checkpoint
