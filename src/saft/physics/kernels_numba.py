@@ -38,7 +38,7 @@ _C4 = ARCCOS_GUARD**4
 _EPS_LEN = 1e-12
 
 _JIT = dict(cache=True, fastmath=False, nogil=True)  # njit: nopython; fastmath off: deterministic
-_HELPERS = ("_hinge_geom", "_hess_q", "_hinge_scalars")  # inlined into the kernels (numba IR level)
+_HELPERS = ("_spring_dir", "_hinge_geom", "_hess_q", "_hinge_scalars")  # inlined into the kernels (numba IR level)
 _KERNELS = ("step_forward", "step_adjoint")
 _loaded = False
 _lock = threading.Lock()
@@ -66,6 +66,20 @@ def load():
         for name in _KERNELS:
             g[name] = jit(g[name])
         _loaded = True
+
+
+def _spring_dir(x, i, j, u):
+    """Fills u (3,) with the unit direction of spring (i, j); returns its length (clamped as energy.py)."""
+    e0 = x[j, 0] - x[i, 0]
+    e1 = x[j, 1] - x[i, 1]
+    e2 = x[j, 2] - x[i, 2]
+    ls = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+    if ls < _EPS_LEN:
+        ls = _EPS_LEN
+    u[0] = e0 / ls
+    u[1] = e1 / ls
+    u[2] = e2 / ls
+    return ls
 
 
 def _hinge_geom(x, n1, v, n2, e1, e2, u1, u2):
@@ -129,16 +143,8 @@ def step_forward(x, edges, rest_len, hinges, rest_angle, bend_w, spring_up, hing
     for k in range(edges.shape[0]):
         i = edges[k, 0]
         j = edges[k, 1]
-        e0 = x[j, 0] - x[i, 0]
-        e1 = x[j, 1] - x[i, 1]
-        e2 = x[j, 2] - x[i, 2]
         L0 = rest_len[k]
-        ls = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
-        if ls < _EPS_LEN:
-            ls = _EPS_LEN
-        u[0] = e0 / ls
-        u[1] = e1 / ls
-        u[2] = e2 / ls
+        ls = _spring_dir(x, i, j, u)
         s = 1.0 - L0 / ls
         sp = s if s > 0.0 else 0.0
         c = Y * (ls - L0)
@@ -213,16 +219,8 @@ def step_adjoint(x, lam, w, edges, rest_len, hinges, rest_angle, bend_w, Y, B, S
     for k in range(edges.shape[0]):
         i = edges[k, 0]
         j = edges[k, 1]
-        e0 = x[j, 0] - x[i, 0]
-        e1 = x[j, 1] - x[i, 1]
-        e2 = x[j, 2] - x[i, 2]
         L0 = rest_len[k]
-        ls = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
-        if ls < _EPS_LEN:
-            ls = _EPS_LEN
-        u[0] = e0 / ls
-        u[1] = e1 / ls
-        u[2] = e2 / ls
+        ls = _spring_dir(x, i, j, u)
         s = 1.0 - L0 / ls
         if s > 0.0:
             sp = s
