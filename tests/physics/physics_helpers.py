@@ -27,3 +27,22 @@ def cube_mesh(size: float = 0.1):
         [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]], dtype=np.int64
     )
     return v, quads
+
+
+def grid_system(mode: str = "projected", compress: float = 1.0, drift: float = 0.0, n: int = 12):
+    """A system matrix A = M + h^2 K of an n x n grid (CSR data; ``drift``: metres of random motion added to
+    the same perturbed state, as between substeps), its topology, a right-hand side and A as scipy CSR."""
+    import scipy.sparse as sp
+    import torch
+
+    from saft.physics import ClothTopology, ElementEval
+
+    v, q = grid_mesh(n, wave=0.02)
+    t = ClothTopology.from_quads(v, q)
+    g = torch.Generator().manual_seed(0)
+    x = compress * t.template + 0.002 * torch.randn(t.template.shape, generator=g, dtype=torch.float64)
+    x = x + drift * torch.randn(t.template.shape, generator=g, dtype=torch.float64)
+    A = ElementEval(t, x, 200.0, 1e-3, 1e-4, mode).system_values(0.005**2, t.mass.repeat_interleave(3)).numpy()
+    N = 3 * t.num_vertices
+    b = np.random.default_rng(0).standard_normal(N)
+    return t, A, b, sp.csr_matrix((A, t.csr_indices, t.csr_indptr), shape=(N, N))

@@ -10,24 +10,13 @@ import scipy.sparse.linalg as spla
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from physics_helpers import grid_mesh  # noqa: E402
+from physics_helpers import grid_mesh, grid_system  # noqa: E402
 
-from saft.physics import ClothTopology, ElementEval, PhysicsParams, rollout  # noqa: E402
+from saft.physics import ClothTopology, PhysicsParams, rollout  # noqa: E402
 from saft.physics import pcg_numba as P  # noqa: E402
 from saft.physics.solver import ReusedLUSolver  # noqa: E402
 
 
-def _system(mode="projected", compress=1.0, drift=0.0, n=12):
-    """A system matrix A = M + h^2 K of an n x n grid (CSR data), its pattern and a right-hand side."""
-    v, q = grid_mesh(n, wave=0.02)
-    t = ClothTopology.from_quads(v, q)
-    g = torch.Generator().manual_seed(0)
-    x = compress * t.template + 0.002 * torch.randn(t.template.shape, generator=g, dtype=torch.float64)
-    x = x + drift * torch.randn(t.template.shape, generator=g, dtype=torch.float64)
-    A = ElementEval(t, x, 200.0, 1e-3, 1e-4, mode).system_values(0.005**2, t.mass.repeat_interleave(3)).numpy()
-    N = 3 * t.num_vertices
-    b = np.random.default_rng(0).standard_normal(N)
-    return t, A, b, sp.csr_matrix((A, t.csr_indices, t.csr_indptr), shape=(N, N))
 
 
 def _superlu(Am, drop_tol, f32=False):
@@ -41,7 +30,7 @@ def _superlu(Am, drop_tol, f32=False):
 def test_superlu_factors_reproduce_lu_solve():
     """How SuperLU's factors relate to A (no scaling): Pr A Pc = L U with Pr = Pc^T in symmetric mode, so
     x = Pc U^-1 L^-1 Pr b reproduces lu.solve (complete and incomplete factors)."""
-    _, _, b, Am = _system()
+    _, _, b, Am = grid_system()
     n = Am.shape[0]
     for drop_tol in (0.0, 1e-3):
         lu = _superlu(Am, drop_tol)
@@ -59,7 +48,7 @@ def test_superlu_factors_reproduce_lu_solve():
 def test_precond_of_complete_factor_is_lu_solve():
     """From a complete factorisation the symmetric U-only preconditioner is A^-1: it matches lu.solve
     (float64 factor: to rounding; float32 factor: to float32 rounding)."""
-    _, _, b, Am = _system()
+    _, _, b, Am = grid_system()
     for f32, tol in ((False, 1e-9), (True, 1e-4)):
         lu = _superlu(Am, 0.0, f32=f32)
         z = P.precond_apply(*P.factors_from_superlu(lu, f32=f32), b)
@@ -71,7 +60,7 @@ def test_precond_of_complete_factor_is_lu_solve():
 def test_precond_of_incomplete_factor_is_symmetric_u_factorisation():
     """From an ILU the preconditioner is M = P^T U^T D^-1 U P (U: SuperLU's incomplete U, P: its
     permutation), built here explicitly with scipy."""
-    _, _, b, Am = _system()
+    _, _, b, Am = grid_system()
     n = Am.shape[0]
     lu = _superlu(Am, 1e-3, f32=True)
     U = sp.csc_matrix(lu.U).astype(np.float64)
@@ -87,14 +76,14 @@ def test_system_matrix_is_symmetric(mode):
     """The numba CG multiplies by A's upper blocks only, so A must be symmetric: bit for bit with the
     projected Hessian (the kernels mirror the upper triangle), to rounding (1e-16 relative, far below any
     CG tolerance) with the exact one."""
-    _, _, _, Am = _system(mode, compress=0.97)
+    _, _, _, Am = grid_system(mode, compress=0.97)
     asym = abs(Am - Am.T).max()
     assert asym == 0.0 if mode == "projected" else asym <= 1e-14 * abs(Am).max()
 
 
 def test_matvec_storages_match_scipy():
     """CSR, block CSR and symmetric upper-block products agree with scipy; the solver uses the last."""
-    t, A, _, Am = _system()
+    t, A, _, Am = grid_system()
     assert P.is_blocked(t.csr_indptr, t.csr_indices)
     ptr, idx = t.csr_indptr.astype(np.uint32), t.csr_indices.astype(np.uint32)
     bptr, bcol, src = P.sym_blocks(t.csr_indptr, t.csr_indices)
@@ -119,8 +108,8 @@ def test_numba_pcg_matches_scipy_reference(drop_tol):
     """Both backends of ReusedLUSolver, preconditioned by the factor of a drifted matrix, reach the direct
     solution; the numba one (U-only preconditioner) needs no more iterations than the reference (L and U)
     and gives the same bits on every call."""
-    t, A0, _, _ = _system()
-    _, A, b, Am = _system(drift=2e-4)
+    t, A0, _, _ = grid_system()
+    _, A, b, Am = grid_system(drift=2e-4)
     ref = spla.spsolve(Am.tocsc(), b)
     its, xs = {}, {}
     for backend in ("numba", "scipy"):
@@ -142,8 +131,8 @@ def test_numba_pcg_matches_scipy_reference(drop_tol):
 def test_numba_pcg_tolerance_and_start():
     """pcg stops at ||b - A x|| <= atol (checked independently), starts from the given x and reports
     iterations; a zero residual start returns at once."""
-    t, A0, _, _ = _system()
-    _, A, b, Am = _system(drift=1e-4)
+    t, A0, _, _ = grid_system()
+    _, A, b, Am = grid_system(drift=1e-4)
     lu = _superlu(sp.csr_matrix((A0, t.csr_indices, t.csr_indptr)), 1e-3, f32=True)
     pre = P.factors_from_superlu(lu)
     ptr, idx = t.csr_indptr.astype(np.uint32), t.csr_indices.astype(np.uint32)
@@ -160,7 +149,7 @@ def test_numba_pcg_tolerance_and_start():
 def test_numba_pcg_breaks_down_on_indefinite_matrix_and_solver_falls_back():
     """The exact Hessian under compression makes A indefinite: the numba CG reports a breakdown, and the
     solver still returns the solution (fallback to complete then pivoted factorisations)."""
-    t, A, b, Am = _system("exact", compress=0.97)
+    t, A, b, Am = grid_system("exact", compress=0.97)
     assert np.linalg.eigvalsh(Am.toarray()).min() < 0
     lu = _superlu(Am, 0.0)  # complete, diagonal pivots: D has negative entries
     ptr, idx = t.csr_indptr.astype(np.uint32), t.csr_indices.astype(np.uint32)
@@ -168,7 +157,7 @@ def test_numba_pcg_breaks_down_on_indefinite_matrix_and_solver_falls_back():
     status, its = P.pcg(ptr, idx, A, 1, b, x, 1e-10 * np.linalg.norm(b), 60, *P.factors_from_superlu(lu))
     assert status in (0, 1)  # M = A^-1 exactly may converge at once; otherwise a breakdown, never max_iter
     s = ReusedLUSolver(t.csr_indptr, t.csr_indices, tol=1e-10)
-    s.factorize(sp.csr_matrix(_system("projected")[3]).data)  # an SPD factor: CG must fail on this A
+    s.factorize(sp.csr_matrix(grid_system("projected")[3]).data)  # an SPD factor: CG must fail on this A
     x = s.solve(A, b)
     assert s.stats.fallbacks == 1
     assert np.linalg.norm(Am @ x - b) <= 1e-10 * np.linalg.norm(b)

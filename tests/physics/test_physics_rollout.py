@@ -9,7 +9,7 @@ import scipy.sparse.linalg as spla
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from physics_helpers import grid_mesh  # noqa: E402
+from physics_helpers import grid_mesh, grid_system  # noqa: E402
 
 from saft.errors import SimulationError  # noqa: E402
 from saft.physics import ClothTopology, ElementEval, PhysicsParams, rollout  # noqa: E402
@@ -77,7 +77,7 @@ def test_rollout_gradients_vs_finite_differences_pinned():
     _gradcheck("projected", pinned=[0, 1, 2, 3, 4], x0_eps=1e-8)
 
 
-def test_one_substep_solves_the_linearised_backward_euler_system():
+def test_one_substep_solves_the_linearised_backward_eulergrid_system():
     t, x0, v0, p, _ = _setup()
     h = 0.02
     pos = rollout(t, x0, v0, p, num_frames=2, substeps=1, tol=1e-13, hessian="exact")
@@ -252,26 +252,14 @@ def test_default_solver_is_deterministic_and_ignores_optional_packages(monkeypat
             assert torch.equal(a, b)
 
 
-def _system(mode, compress=1.0, drift=0.0):
-    """A system matrix A = M + h^2 K of a 12x12 grid (CSR data; ``drift``: metres of random motion added
-    to the same perturbed state, as between substeps), its pattern and a right-hand side."""
-    v, q = grid_mesh(12, wave=0.02)
-    t = ClothTopology.from_quads(v, q)
-    g = torch.Generator().manual_seed(0)
-    x = compress * t.template + 0.002 * torch.randn(t.template.shape, generator=g, dtype=torch.float64)
-    x = x + drift * torch.randn(t.template.shape, generator=g, dtype=torch.float64)
-    A = ElementEval(t, x, 200.0, 1e-3, 1e-4, mode).system_values(0.005**2, t.mass.repeat_interleave(3)).numpy()
-    n = 3 * t.num_vertices
-    b = np.random.default_rng(0).standard_normal(n)
-    return t, A, b, sp.csr_matrix((A, t.csr_indices, t.csr_indptr), shape=(n, n))
 
 
 @pytest.mark.parametrize("drop_tol", [1e-4, 0.0])
 def test_reused_factor_solver_matches_direct_solve(drop_tol):
     """CG preconditioned by the (incomplete, default) or complete LU of a drifted matrix reaches the direct
     solution; the incomplete factor has fewer entries than the complete one."""
-    t, A0, _, _ = _system("projected")
-    _, A, b, Am = _system("projected", drift=2e-4)
+    t, A0, _, _ = grid_system("projected")
+    _, A, b, Am = grid_system("projected", drift=2e-4)
     s = ReusedLUSolver(t.csr_indptr, t.csr_indices, tol=1e-12, drop_tol=drop_tol)
     s.factorize(A0)
     assert s.incomplete == (drop_tol > 0)
@@ -288,7 +276,7 @@ def test_reused_factor_solver_matches_direct_solve(drop_tol):
 def test_reused_factor_solver_indefinite_matrix_falls_back_to_pivoted_lu():
     """The exact Hessian under compression makes A indefinite: CG breaks down, the solver falls back to a
     complete factorisation and a direct solve, still to the requested tolerance."""
-    t, A, b, Am = _system("exact", compress=0.97)
+    t, A, b, Am = grid_system("exact", compress=0.97)
     assert np.linalg.eigvalsh(Am.toarray()).min() < 0
     s = ReusedLUSolver(t.csr_indptr, t.csr_indices, tol=1e-10)
     x = s.solve(A, b)
