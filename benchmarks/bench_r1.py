@@ -42,7 +42,8 @@ ABLATIONS = {
     "no_final_decay": ["shape.final_lr_fraction=1"],
     "full_passes": ["shape.window=0"],
     # the paper's optimisation: no tracks, no backtracking, constant learning rates, every epoch from the template
-    "paper_optim": ["shape.lambda_track=0", "shape.backtrack_ratio=0", "shape.final_lr_fraction=1", "shape.window=0"],
+    "paper_optim": ["shape.lambda_track=0", "shape.backtrack_ratio=0", "shape.final_lr_fraction=1", "shape.window=0",
+                    "shape.final_epochs=24"],
 }
 
 R1 = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "phi_sft" / "data" / "scenes" / "R1.json"
