@@ -82,7 +82,8 @@ def test_system_matrix_is_symmetric(mode):
 
 
 def test_matvec_storages_match_scipy():
-    """CSR, block CSR and symmetric upper-block products agree with scipy; the solver uses the last."""
+    """CSR and symmetric upper-block products agree with scipy; the solver uses the latter where the
+    pattern has the vertex-block layout."""
     t, A, _, Am = grid_system()
     assert P.is_blocked(t.csr_indptr, t.csr_indices)
     ptr, idx = t.csr_indptr.astype(np.uint32), t.csr_indices.astype(np.uint32)
@@ -90,7 +91,7 @@ def test_matvec_storages_match_scipy():
     assert len(src) == 9 * len(bcol) and 2 * len(src) - 9 * t.num_vertices == len(A)
     v = np.random.default_rng(1).standard_normal(Am.shape[0])
     out = np.empty_like(v)
-    for mode, mat in ((0, (ptr, idx, A)), (1, (ptr, idx, A)), (2, (bptr, bcol, P.gather(A, src)))):
+    for mode, mat in ((0, (ptr, idx, A)), (2, (bptr, bcol, P.gather(A, src)))):
         P._spmv(*mat, mode, v, out)
         assert np.abs(out - Am @ v).max() <= 1e-13 * np.abs(Am @ v).max()
     s = ReusedLUSolver(t.csr_indptr, t.csr_indices)
@@ -139,10 +140,10 @@ def test_numba_pcg_tolerance_and_start():
     for tol in (1e-4, 1e-8, 1e-12):
         x = np.zeros_like(b)
         atol = tol * np.linalg.norm(b)
-        status, its = P.pcg(ptr, idx, A, 1, b, x, atol, 200, *pre)
+        status, its = P.pcg(ptr, idx, A, 0, b, x, atol, 200, *pre)
         assert status == 0 and 0 < its < 200
         assert np.linalg.norm(b - Am @ x) <= atol * (1 + 1e-6)
-    status, its = P.pcg(ptr, idx, A, 1, Am @ x, x.copy(), 1e-12, 200, *pre)
+    status, its = P.pcg(ptr, idx, A, 0, Am @ x, x.copy(), 1e-12, 200, *pre)
     assert status == 0 and its <= 1
 
 
@@ -154,7 +155,7 @@ def test_numba_pcg_breaks_down_on_indefinite_matrix_and_solver_falls_back():
     lu = _superlu(Am, 0.0)  # complete, diagonal pivots: D has negative entries
     ptr, idx = t.csr_indptr.astype(np.uint32), t.csr_indices.astype(np.uint32)
     x = np.zeros_like(b)
-    status, its = P.pcg(ptr, idx, A, 1, b, x, 1e-10 * np.linalg.norm(b), 60, *P.factors_from_superlu(lu))
+    status, its = P.pcg(ptr, idx, A, 0, b, x, 1e-10 * np.linalg.norm(b), 60, *P.factors_from_superlu(lu))
     assert status in (0, 1)  # M = A^-1 exactly may converge at once; otherwise a breakdown, never max_iter
     s = ReusedLUSolver(t.csr_indptr, t.csr_indices, tol=1e-10)
     s.factorize(sp.csr_matrix(grid_system("projected")[3]).data)  # an SPD factor: CG must fail on this A

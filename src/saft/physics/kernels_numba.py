@@ -26,7 +26,6 @@ symmetric.
 from __future__ import annotations
 
 import threading
-import time
 
 import numpy as np
 
@@ -333,21 +332,3 @@ class NumbaGeo:
         self.up_of = np_(t.up_of).astype(it)
         self.nnz_up = int(t.nnz_up)
 
-
-def warmup():
-    """Import numba and compile (or load from the cache) both kernels on a tiny mesh; returns the seconds it
-    took."""
-    t0 = time.perf_counter()
-    load()
-    x = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0]])
-    edges = np.array([[0, 1], [1, 2]], dtype=np.int64)
-    hinges = np.array([[0, 1, 2]], dtype=np.int64)
-    one = np.ones(1)
-    rl = np.ones(2)
-    up2 = np.zeros((2, 21), dtype=np.int32)
-    up1 = np.zeros((1, 45), dtype=np.int32)
-    idx = np.zeros(9, dtype=np.int32)
-    step_forward(x, edges, rl, hinges, one, one, up2, up1, idx, idx, np.ones(9), 1.0, 1.0, 1.0, 1.0, 1,
-                 np.empty(9))
-    step_adjoint(x, x, x, edges, rl, hinges, one, one, 1.0, 1.0, 1.0, 1.0)
-    return time.perf_counter() - t0

@@ -36,38 +36,18 @@ def _row_dot(ptr, idx, val, k, v):
 
 @njit(cache=_CACHE, nogil=True)
 def _spmv(aptr, aidx, aval, mode, v, out):
-    """out = A v. ``mode`` 0: A in CSR (aptr, aidx, aval). 1: the same CSR arrays, made of 3x3 blocks (the
-    three rows of a vertex share their columns, which come in triples 3u, 3u+1, 3u+2; see ``is_blocked``):
-    each column index and each v[3u..3u+2] is read once for nine entries. 2: A symmetric, stored as its
-    upper 3x3 blocks (``sym_blocks``): aptr over vertex rows, aidx the block columns (vertices, the
-    diagonal block first in each row), aval nine row-major values per block; each off-diagonal block is
-    read once for both of its products, half the memory traffic of mode 1."""
+    """out = A v. ``mode`` 0: A in CSR (aptr, aidx, aval), for any pattern. 2: A symmetric, stored as its
+    upper 3x3 blocks (``sym_blocks``, for patterns with ``is_blocked``): aptr over vertex rows, aidx the
+    block columns (vertices, the diagonal block first in each row), aval nine row-major values per block;
+    each off-diagonal block is read once for both of its products (half the memory traffic of a blocked
+    CSR product, which was measured at 30 us against 22 on R1 and is no longer kept)."""
     n = v.shape[0]
     if mode == 0:
         for i in range(n):
             out[i] = _row_dot(aptr, aidx, aval, i, v)
         return
-    if mode == 1:
-        for i in range(0, n, 3):
-            b0 = aptr[i]
-            b1 = aptr[i + 1]
-            b2 = aptr[i + 2]
-            m = b1 - b0
-            y0 = 0.0
-            y1 = 0.0
-            y2 = 0.0
-            for k in range(0, m, 3):
-                c = aidx[b0 + k]
-                x0 = v[c]
-                x1 = v[c + 1]
-                x2 = v[c + 2]
-                y0 += aval[b0 + k] * x0 + aval[b0 + k + 1] * x1 + aval[b0 + k + 2] * x2
-                y1 += aval[b1 + k] * x0 + aval[b1 + k + 1] * x1 + aval[b1 + k + 2] * x2
-                y2 += aval[b2 + k] * x0 + aval[b2 + k + 1] * x1 + aval[b2 + k + 2] * x2
-            out[i] = y0
-            out[i + 1] = y1
-            out[i + 2] = y2
-        return
+    if mode != 2:
+        raise ValueError("_spmv: mode must be 0 (CSR) or 2 (symmetric upper 3x3 blocks)")
     for i in range(n):
         out[i] = 0.0
     for vv in range(aptr.shape[0] - 1):
