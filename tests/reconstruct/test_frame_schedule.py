@@ -64,7 +64,7 @@ def test_simulated_frames_per_epoch_counts_the_windowed_work():
 
     full = ShapeConfig(window=0)
     assert simulated_frames_per_epoch(40, full) == shape_schedule(40, full)
-    cfg = ShapeConfig(window=6, full_pass_every=10)
+    cfg = ShapeConfig(window=6, full_pass_every=10, final_epochs=24)
     sched = shape_schedule(40, cfg)
     work = simulated_frames_per_epoch(40, cfg)
     assert len(work) == len(sched)

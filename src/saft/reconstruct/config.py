@@ -72,10 +72,10 @@ class ShapeConfig:
     initial_frames: int = 3               # frames 0..2 first
     initial_epochs: int = 0               # epochs on the initial frames (0 = add_frame_every)
     add_frame_every: int = 5              # one more frame every 5 epochs
-    # Then this many epochs with all frames. The reference runs 24 (its 260-epoch schedule for 50 frames);
-    # 36 measured better on R1 (median of 3 perturbed runs) and on all six benchmark scenes, the last frames
-    # most, at 7 % more shape-phase time (BENCHMARKS.md, "36 final epochs").
-    final_epochs: int = 36
+    # Then this many epochs with all frames. The reference runs 24 (its 260-epoch schedule for 50 frames).
+    # 24 -> 36 -> 72 each measured better on R1 (perturbed runs) and on all six benchmark scenes, the last
+    # frames most; 72 costs R1 about 15 % more time than 36 (BENCHMARKS.md, "72 final epochs").
+    final_epochs: int = 72
     # Convergence-driven schedule (saft.reconstruct.frame_schedule; 0 = the fixed schedule, the paper): after
     # add_frame_every epochs, the newest frame waits while the loss still falls by more than plateau_tol
     # (relative, lowest of the last two epochs against the lowest before), up to this many extra epochs.
