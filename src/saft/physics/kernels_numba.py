@@ -272,8 +272,6 @@ def step_adjoint(x, lam, w, edges, rest_len, hinges, rest_angle, bend_w, Y, B, S
         phi_qq = kh * tau
         d2th = -_C3 * q / (s2 * rs2)
         phi_qq_exact = kh * (tau + dtheta * d2th)
-        gl = 0.0
-        gw = 0.0
         for d in range(3):
             g1[d] = (u2[d] - q * u1[d]) / l1
             g2[d] = (u1[d] - q * u2[d]) / l2
