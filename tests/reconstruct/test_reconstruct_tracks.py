@@ -7,7 +7,8 @@ import torch
 from saft.reconstruct.config import ShapeConfig
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
 from saft.reconstruct.shape_phase import lr_factor
-from saft.reconstruct.tracks import VertexTracks, bilinear_sample, project, track_loss, track_points
+from saft.reconstruct.tracks import (VertexTracks, appearance_steps, bilinear_sample, end_at_appearance_jumps, project,
+                                     track_loss, track_points)
 from saft.scene.camera import look_at
 from saft.synthetic import procedural_texture
 
@@ -259,3 +260,40 @@ def test_hidden_tracks_do_not_count():
     assert float(track_loss(pos, tr, cam, 3.0)) > 0
     hidden = torch.tensor([[False, True]])
     assert float(track_loss(pos, tr, cam, 3.0, hidden=hidden)) == pytest.approx(0.0, abs=1e-15)
+
+
+def test_a_track_ends_at_its_first_colour_jump():
+    rng = np.random.default_rng(0)
+    tex = _smooth_texture(96)
+    frames = np.stack([tex] * 6) + rng.normal(0, 0.004, (6,) + tex.shape)
+    grid = np.stack(np.meshgrid(np.arange(20.0, 80.0, 10.0), np.arange(20.0, 70.0, 10.0)), -1).reshape(-1, 2)
+    points = np.repeat((grid + rng.uniform(-1, 1, grid.shape))[None], 6, axis=0)    # 30 points 10 px apart
+    covered = np.zeros(30, bool)
+    covered[:10] = True
+    other = np.roll(_smooth_texture(96, seed=5), 17, axis=0)         # a flap printed with another pattern
+    for t in range(3, 6):
+        for u, v in points[t][covered]:
+            r, c = int(round(v)), int(round(u))
+            frames[t, r - 3:r + 4, c - 3:c + 4] = other[r - 3:r + 4, c - 3:c + 4]
+    valid = np.ones((6, 30), bool)
+    steps = appearance_steps(frames, points)
+    assert steps[0].max() == 0.0 and np.median(steps[1:]) < 0.01
+    kept = end_at_appearance_jumps(frames, points, valid, jump_ratio=8.0, jump_floor=0.03)
+    jumped = covered & (steps[3] > 0.05)                             # where the flap's print differs enough
+    assert jumped.sum() >= 8
+    assert kept[:3].all() and kept[:, ~covered].all()
+    assert not kept[3:, jumped].any()                                # ended for good, not just in frame 3
+    assert (end_at_appearance_jumps(frames, points, valid, 0.0, 0.03) == valid).all()   # 0 = off
+
+
+def test_the_colour_jump_threshold_follows_the_videos_noise():
+    rng = np.random.default_rng(1)
+    tex = _smooth_texture(96)
+    points = np.repeat(rng.uniform(20, 76, (40, 2))[None], 8, axis=0)
+    valid = np.ones((8, 40), bool)
+    quiet = np.stack([tex] * 8) + rng.normal(0, 0.002, (8,) + tex.shape)
+    noisy = np.stack([tex] * 8) + rng.normal(0, 0.05, (8,) + tex.shape)  # a noisy camera: no track ends
+    assert end_at_appearance_jumps(noisy, points, valid, 8.0, 0.03).all()
+    quiet[5:] += 0.2                                                 # a jump far above the quiet noise
+    kept = end_at_appearance_jumps(quiet, points, valid, 8.0, 0.03)
+    assert kept[:5].all() and not kept[5:].any()

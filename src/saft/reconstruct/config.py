@@ -115,6 +115,11 @@ class ShapeConfig:
     # Re-anchoring (pixels; 0 = chained flow only): where a frame's direct flow from frame 0 passes the
     # forward-backward check within this distance of the chained track, the track takes it (no drift).
     track_reanchor_radius: float = 2.0
+    # A track also ends at its first step whose colour changes by more than this many times the video's
+    # median step (never less than track_jump_floor, in [0, 1] RGB): a covered point whose track slid onto
+    # a flap folding over it (saft.reconstruct.tracks; 0 = off).
+    track_jump_ratio: float = 0.0
+    track_jump_floor: float = 0.03
     # Skip a track where the current reconstruction hides its vertex behind another part of the cloth by
     # more than the mean edge length (a fold the flow's forward-backward check let through).
     track_occlusion: bool = True

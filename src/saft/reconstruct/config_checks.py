@@ -50,6 +50,8 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "shape.track_fb_threshold": (0, INF, False),
     "shape.track_huber": (0, INF, False),
     "shape.track_reanchor_radius": (0, INF, True),
+    "shape.track_jump_ratio": (0, INF, True),
+    "shape.track_jump_floor": (0, 1, True),
     "shape.final_lr_fraction": (0, 1, False),
     "shape.backtrack_ratio": (0, INF, True),
     "shape.backtrack_decay": (0, 1, False),
