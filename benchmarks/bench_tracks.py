@@ -1,13 +1,15 @@
 """How far the point tracks drift from the true projections of the ground-truth vertices.
 
     python benchmarks/bench_tracks.py [--scenes-dir DIR] [--only a,b,c] [--radii 0,3] [--frames 5,10,20,29]
+                                      [--jump-ratios 0,8]
 
 On the benchmark scenes (saft.synthetic.benchmark_scenes, generated into --scenes-dir when missing; the
 pinned and unpinned folders share one video, so the pinned one is used), computes the shape phase's
 vertex tracks (saft.reconstruct.tracks) for each re-anchoring radius in --radii (0 = chained flow only) and
 prints, per scene and frame, the median and 90th percentile of |track − projection of the ground-truth
-vertex| over the still-valid tracks, and their coverage. The last line is
-`tracks_p90_px_last_frame_<radius>=<median over scenes>` for each radius.
+vertex| over the still-valid tracks, and their coverage, for each colour-jump ratio in --jump-ratios
+(shape.track_jump_ratio; 0 = off). The last lines are `tracks_p90_px_last_frame_<radius>[_jump<ratio>]=<median
+over scenes>` for each radius and ratio.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from saft.scene import load_scene
 from saft.synthetic.benchmark_scenes import SCENARIOS, BenchSceneSpec, write_benchmark_scenes
 
 
-def scene_tracks_error(folder: Path, radius: float, fb_threshold: float = 1.0) -> dict:
+def scene_tracks_error(folder: Path, radius: float, fb_threshold: float = 1.0, jump_ratio: float = 0.0) -> dict:
     scene = load_scene(folder)
     camera = scene.working_camera(1.0)
     rgb, mask = scene.working_frames(1.0).load()
@@ -38,7 +40,7 @@ def scene_tracks_error(folder: Path, radius: float, fb_threshold: float = 1.0) -
                           rasterizer=get_rasterizer("torch", "cpu")).depth[0]
     t0 = time.perf_counter()
     tracks = compute_vertex_tracks(torch.as_tensor(rgb), torch.as_tensor(mask), template, camera, depth0,
-                                   fb_threshold, reanchor_radius=radius)
+                                   fb_threshold, reanchor_radius=radius, jump_ratio=jump_ratio)
     seconds = time.perf_counter() - t0
     gt = torch.as_tensor(np.load(folder / "gt_vertices.npy"), dtype=torch.float64)
     uv_true, _ = project(gt, camera)
@@ -58,23 +60,24 @@ def main() -> None:
     p.add_argument("--only", default=",".join(SCENARIOS), help="scenarios (a, b, c)")
     p.add_argument("--radii", default="0,3", help="re-anchoring radii in pixels (0 = chained flow only)")
     p.add_argument("--frames", default="5,10,20,29", help="frames to print (clipped to the video)")
+    p.add_argument("--jump-ratios", default="0", help="colour-jump ratios (shape.track_jump_ratio; 0 = off)")
     args = p.parse_args()
     scenarios = [s for s in args.only.split(",") if s]
     write_benchmark_scenes(args.scenes_dir, replace(BenchSceneSpec()), scenarios)
-    radii = [float(r) for r in args.radii.split(",")]
-    last_p90: dict[float, list[float]] = {r: [] for r in radii}
+    settings = [(float(r), float(j)) for r in args.radii.split(",") for j in args.jump_ratios.split(",")]
+    last_p90: dict[tuple[float, float], list[float]] = {k: [] for k in settings}
     for s in scenarios:
         folder = args.scenes_dir / f"{s}_pinned"
-        for r in radii:
-            res = scene_tracks_error(folder, r)
+        for r, j in settings:
+            res = scene_tracks_error(folder, r, jump_ratio=j)
             rows = res["rows"]
             frames = [f for f in (int(x) for x in args.frames.split(",")) if f < len(rows)] or [len(rows) - 1]
             cells = "  ".join(f"f{f}: {rows[f][0]:.2f}/{rows[f][1]:.2f} px ({rows[f][2]:.2f})" for f in frames)
-            print(f"{s} radius {r:g}: {cells}  [{res['seconds']:.1f} s]", flush=True)
-            last_p90[r].append(rows[-1][1])
-    for r in radii:
-        print(f"tracks_p90_px_last_frame_{r:g}={statistics.median(last_p90[r]):.3f}")
-
+            print(f"{s} radius {r:g} jump {j:g}: {cells}  [{res['seconds']:.1f} s]", flush=True)
+            last_p90[(r, j)].append(rows[-1][1])
+    for r, j in settings:
+        suffix = f"_jump{j:g}" if j > 0 else ""
+        print(f"tracks_p90_px_last_frame_{r:g}{suffix}={statistics.median(last_p90[(r, j)]):.3f}")
 
 if __name__ == "__main__":
     main()
