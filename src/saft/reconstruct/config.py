@@ -117,8 +117,11 @@ class ShapeConfig:
     track_reanchor_radius: float = 2.0
     # A track also ends at its first step whose colour changes by more than this many times the video's
     # median step (never less than track_jump_floor, in [0, 1] RGB): a covered point whose track slid onto
-    # a flap folding over it (saft.reconstruct.tracks; 0 = off).
-    track_jump_ratio: float = 0.0
+    # a flap folding over it (saft.reconstruct.tracks; 0 = off). 8: on the fold scene it ends 324 of the
+    # 363 track-frames that were > 4 px off and 0.7 % of those within 2 px (c_unpinned CD2 7.06 -> 3.91,
+    # R1 0.451 -> 0.438, medians of 3); 6 also ended the grabbed corner's good tracks as it turned
+    # (c_unpinned 13), 10 let more wrong ones through (4.16). BENCHMARKS.md, "Tracks end at colour jumps".
+    track_jump_ratio: float = 8.0
     track_jump_floor: float = 0.03
     # Skip a track where the current reconstruction hides its vertex behind another part of the cloth by
     # more than the mean edge length (a fold the flow's forward-backward check let through).
