@@ -17,13 +17,11 @@ CD2 and, last, `r1_cd2_1e-4m2=<median mean CD2>` of the first ablation.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import statistics
 import time
 from pathlib import Path
 
-import numpy as np
 
 from saft.evaluate import evaluate_result_dir, ground_truth_spec_for
 from saft.reconstruct import reconstruct
@@ -64,9 +62,7 @@ def run(ablation: str, out: Path, device: str, extra: list[str], frames: int | N
         scene = scene.with_frames(frames)
     settings, noise_seed = perturbation(repeat)
     if noise_seed is not None:
-        noise = np.random.default_rng(noise_seed).normal(0.0, 1e-9, scene.template.vertices.shape)
-        scene = dataclasses.replace(scene, template=dataclasses.replace(
-            scene.template, vertices=scene.template.vertices + noise))
+        scene = scene.with_template_noise(noise_seed)
     cfg = load_saft_config(None, [f'run.device="{device}"', "appearance.enabled=false"] + settings
                            + ABLATIONS[ablation] + extra)
     t0 = time.perf_counter()

@@ -18,14 +18,11 @@ bench_r1.py; the scoring uses the scene as given): the runs are deterministic, s
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import statistics
 import time
 from dataclasses import asdict, replace
 from pathlib import Path
-
-import numpy as np
 
 from saft.evaluate import evaluate_result_dir, evaluate_static_template, ground_truth_spec_for
 from saft.io_utils import atomic_write_json
@@ -41,9 +38,7 @@ def run_scene(folder: Path, out: Path, device: str, extra: list[str], noise_seed
     gt = ground_truth_spec_for(scene)
     static = evaluate_static_template(scene, gt)
     if noise_seed > 0:
-        noise = np.random.default_rng(noise_seed).normal(0.0, 1e-9, scene.template.vertices.shape)
-        scene = dataclasses.replace(scene, template=dataclasses.replace(
-            scene.template, vertices=scene.template.vertices + noise))
+        scene = scene.with_template_noise(noise_seed)
     t0, c0 = time.perf_counter(), time.process_time()
     reconstruct(scene, cfg, out, resume=(out / "checkpoint" / "state.pt").is_file(), quiet=True)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0

@@ -79,5 +79,6 @@ def main() -> None:
         suffix = f"_jump{j:g}" if j > 0 else ""
         print(f"tracks_p90_px_last_frame_{r:g}{suffix}={statistics.median(last_p90[(r, j)]):.3f}")
 
+
 if __name__ == "__main__":
     main()

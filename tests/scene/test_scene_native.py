@@ -88,3 +88,13 @@ def test_write_then_read_round_trip(native_scene, tmp_path):
 def test_scene_not_found(tmp_path):
     with pytest.raises(SaftInputError, match="not found"):
         load_scene(tmp_path / "nothing")
+
+
+def test_template_noise_is_seeded_tiny_and_leaves_the_rest(native_scene):
+    s = load_scene(native_scene)
+    a, b, c = s.with_template_noise(1), s.with_template_noise(1), s.with_template_noise(2)
+    assert np.array_equal(a.template.vertices, b.template.vertices)
+    moved = a.template.vertices - s.template.vertices
+    assert 0 < np.abs(moved).max() < 1e-8
+    assert not np.array_equal(a.template.vertices, c.template.vertices)
+    assert np.array_equal(a.template.triangles, s.template.triangles) and a.frames == s.frames

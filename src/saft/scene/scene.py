@@ -74,6 +74,12 @@ class Scene:
         masks = f.mask_paths[:count] if f.mask_paths else None
         return replace(self, frames=replace(f, rgb_paths=f.rgb_paths[:count], mask_paths=masks))
 
+    def with_template_noise(self, seed: int, sigma: float = 1e-9) -> "Scene":
+        """The scene with its template moved by seeded Gaussian noise of `sigma` metres: a perturbation that
+        should not matter, to repeat a deterministic reconstruction (the benchmarks' perturbed runs)."""
+        noise = np.random.default_rng(seed).normal(0.0, sigma, self.template.vertices.shape)
+        return replace(self, template=replace(self.template, vertices=self.template.vertices + noise))
+
     def validate(self, meta_source: Path | None = None) -> None:
         """Cross-checks between the parts (each reader also checks its own files). Problems with frame_dt,
         pinned vertices, gravity and the crop name `meta_source` (the file that gave them), others the scene."""
