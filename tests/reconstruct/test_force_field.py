@@ -124,3 +124,19 @@ def test_the_along_ray_weight_of_r_f_depends_on_whether_vertices_are_pinned():
     assert along_ray_weight(cfg, free) == 0.8
     assert along_ray_weight(cfg, held) == 0.1
     assert along_ray_weight(ShapeConfig(), free) == 1.0 and along_ray_weight(ShapeConfig(), held) == 0.0
+
+
+def test_the_light_exists_only_at_a_positive_rate_and_is_restored_from_a_checkpoint():
+    from saft.reconstruct.shape_phase import restore_shape_state
+
+    _, off = _sim_and_state(ShapeConfig(lr_light=0.0))
+    assert off.params.light is None and "light" not in off.params.tensors()
+    cfg = ShapeConfig(lr_light=0.05)
+    _, on = _sim_and_state(cfg)
+    assert torch.equal(on.params.light, torch.zeros(3, dtype=torch.float64))   # zero light: the unlit renderer
+    assert "light" in on.params.tensors() and on.params.light.requires_grad
+    with torch.no_grad():
+        on.params.light += torch.tensor([0.1, -0.2, 0.3], dtype=torch.float64)
+    back = restore_shape_state(on.state_dict(), cfg, "cpu")
+    assert torch.equal(back.params.light, on.params.light) and back.params.light.requires_grad
+

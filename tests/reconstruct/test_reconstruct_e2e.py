@@ -120,3 +120,15 @@ def test_phase3_runs_inside_reconstruct_and_writes_material(tiny_scene, tmp_path
     rows = read_result(tmp_path).log_rows
     assert sum(r["phase"] == "appearance" for r in rows) == 3
     assert 'profile = "cpu"' in (tmp_path / "config.toml").read_text()
+
+
+def test_the_relative_shading_learns_a_light_and_saves_it(tiny_scene, tmp_path):
+    """shape.lr_light > 0: the shaded renderer runs through the whole pipeline (forward, backward, resume
+    state), the light gets gradients and moves from zero, and params.json reports it."""
+    scene = tiny_scene.with_frames(4)
+    cfg = load_config(SaftConfig, None, TINY_CONFIG + ["texture.epochs=10", "shape.final_epochs=4",
+                                                       "shape.add_frame_every=2", "shape.lr_light=0.05"])
+    outcome = reconstruct(scene, cfg, tmp_path / "lit", quiet=True)
+    assert np.isfinite(outcome.positions).all()
+    light = json.loads((tmp_path / "lit" / "params.json").read_text())["light"]
+    assert len(light) == 3 and max(abs(v) for v in light) > 1e-3

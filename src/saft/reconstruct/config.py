@@ -138,6 +138,13 @@ class ShapeConfig:
     # sway in the wind) at the scale of gravity within a few epochs. 0.3: 1.0 overshot early and the step
     # guard cut every rate for the rest of the run (BENCHMARKS.md, "Affine acceleration field").
     lr_field_accel: float = 0.3
+    # Learning rate of the first-order light vector of the relative shading (saft.render.shading; 0 = off,
+    # the paper's unlit renderer): the shape renderer darkens or brightens each vertex as its normal turns
+    # from frame 0's, so that a cloth tilting away from the light can be told from one tilting towards it.
+    # Off by default: 0.05 halved the wind scene's error without pins (a_unpinned, median of 3: 1.11 ->
+    # 0.62) and left the other scenes within their noise, but made R1 5 % worse and its last frame 2.1x
+    # its mean (issue 11 asks <= 2x). BENCHMARKS.md, "Relative shading in the shape renderer".
+    lr_light: float = 0.0
     normalize_loss: bool = True           # divide the loss by its detached value before backward
     grad_clip: float = 1e3
     autoclip_quantile: float = 0.75

@@ -42,6 +42,7 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "shape.lr_const_accel": (0, INF, True),
     "shape.lr_vertex_accel": (0, INF, True),
     "shape.lr_field_accel": (0, INF, True),
+    "shape.lr_light": (0, INF, True),
     "shape.grad_clip": (0, INF, False),
     "shape.autoclip_quantile": (0, 1, False),
     "shape.autoclip_history": (1, INF, True),

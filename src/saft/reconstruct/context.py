@@ -17,6 +17,7 @@ import torch
 from saft.reconstruct.checkpoint import CheckpointClock, InterruptGuard, Interrupted, save_checkpoint
 from saft.reconstruct.progress import EpochLog, Progress
 from saft.render import render_cloth
+from saft.render.shading import facing_normals, shading_ratio
 from saft.scene.camera import Camera
 
 
@@ -38,11 +39,23 @@ class PhaseContext:
     timings: dict                      # seconds per phase, accumulated over resumed runs
     guard: InterruptGuard = field(default_factory=InterruptGuard)
     clock: CheckpointClock = field(default_factory=lambda: CheckpointClock(0.0))
+    _reference_normals: torch.Tensor | None = field(default=None, repr=False)   # facing normals of the template
     # Called after every epoch with (phase, epochs done); returning True acts like Ctrl-C.
     on_epoch: Callable[[str, int], bool | None] | None = None
 
-    def render(self, vertices: torch.Tensor, texture: torch.Tensor):
-        return render_cloth(vertices, self.triangles, self.uvs, texture, self.camera, rasterizer=self.rasterizer)
+    def render(self, vertices: torch.Tensor, texture: torch.Tensor, light: torch.Tensor | None = None):
+        """render_cloth of (B, V, 3) vertices with the run's texture; with a light vector (3,), shaded relative
+        to the template (saft.render.shading: the texture holds frame 0's shading)."""
+        shading = None
+        if light is not None:
+            center = torch.as_tensor(self.camera.center, dtype=vertices.dtype, device=vertices.device)
+            if self._reference_normals is None:
+                self._reference_normals = facing_normals(self.template_positions[None].to(vertices.dtype),
+                                                         self.triangles.long(), center)[0]
+            shading = shading_ratio(vertices, self._reference_normals.to(vertices.dtype), self.triangles.long(),
+                                    center, light)
+        return render_cloth(vertices, self.triangles, self.uvs, texture, self.camera, rasterizer=self.rasterizer,
+                            vertex_shading=shading)
 
     def checkpoint(self, phase: str | None = None, phase_state: dict | None = None) -> None:
         """Write the checkpoint now, with `phase_state` as the state of the running `phase` when given."""

@@ -217,6 +217,7 @@ def shape_params_summary(p: dict, cfg: SaftConfig, scene: Scene) -> dict:
     return {
         "Y": 10 ** lY, "B": 10 ** lB, "S": 10 ** lS, "log10_Y": lY, "log10_B": lB, "log10_S": lS,
         "constant_acceleration": [float(v) for v in p["const_accel"]],
+        **({"light": [float(v) for v in p["light"]]} if "light" in p else {}),
         "damping": cfg.physics.damping, "density": cfg.physics.density, "frame_dt": scene.frame_dt,
         "substeps": cfg.physics.substeps,
         "units": {"Y": "N/m", "B": "N·m/rad²", "S": "N·m/rad²", "constant_acceleration": "m/s²",

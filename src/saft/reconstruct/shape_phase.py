@@ -12,7 +12,9 @@ force_along_weight_pinned when vertices are pinned; the paper: 0); L_track: the 
 vertices to their optical-flow point tracks (saft.reconstruct.tracks; not in the paper).
 The optimized parameters are log10 Y, B, S (clamped to their ranges), a constant acceleration (gravity +
 mean wind), per-vertex per-frame accelerations and a per-frame affine acceleration field over the
-template (saft.reconstruct.force_field; not in the paper), each with its own clipped Adam.
+template (saft.reconstruct.force_field; not in the paper) and, with shape.lr_light > 0, the light vector of
+the relative shading (saft.render.shading; not in the paper: the renderer is then lit relative to frame 0),
+each with its own clipped Adam.
 """
 
 from __future__ import annotations
@@ -49,12 +51,15 @@ class ShapeParams:
     const_accel: torch.Tensor      # (3,)
     vertex_accel: torch.Tensor     # (N-1, V, 3): during the substeps from frame k to k+1
     field_accel: torch.Tensor | None = None   # (N-1, 4, 3): the affine field's coefficients (force_field.py)
+    light: torch.Tensor | None = None         # (3,): first-order light vector of the relative shading (render.shading)
 
     def tensors(self) -> dict[str, torch.Tensor]:
         t = {"log10_Y": self.log10_Y, "log10_B": self.log10_B, "log10_S": self.log10_S,
              "const_accel": self.const_accel, "vertex_accel": self.vertex_accel}
         if self.field_accel is not None:
             t["field_accel"] = self.field_accel
+        if self.light is not None:
+            t["light"] = self.light
         return t
 
     def accelerations(self, basis: torch.Tensor, lo: int, hi: int) -> torch.Tensor:
@@ -112,6 +117,8 @@ def _make_optimizer(params: ShapeParams, cfg: ShapeConfig) -> ClippedAdam:
              ParamSpec("vertex_accel", params.vertex_accel, cfg.lr_vertex_accel)]
     if params.field_accel is not None:
         specs.append(ParamSpec("field_accel", params.field_accel, cfg.lr_field_accel))
+    if params.light is not None:
+        specs.append(ParamSpec("light", params.light, cfg.lr_light))
     if cfg.optimize_stiffness:
         specs += [ParamSpec(n, getattr(params, n), cfg.lr_stiffness) for n in ("log10_Y", "log10_B", "log10_S")]
     return ClippedAdam(specs, clip=cfg.grad_clip, quantile=cfg.autoclip_quantile, history=cfg.autoclip_history,
@@ -143,12 +150,13 @@ def new_shape_state(num_frames: int, num_vertices: int, gravity: np.ndarray, phy
                                  requires_grad=True),
         field_accel=(torch.zeros(max(num_frames - 1, 0), 4, 3, dtype=dtype, device=device, requires_grad=True)
                      if cfg.lr_field_accel > 0 else None),
+        light=torch.zeros(3, dtype=dtype, device=device, requires_grad=True) if cfg.lr_light > 0 else None,
     )
     return ShapeState(params, _make_optimizer(params, cfg), _make_guard(cfg))
 
 
 def restore_shape_state(saved: dict, cfg: ShapeConfig, device) -> ShapeState:
-    p = {k: v.to(device).requires_grad_(k in ("const_accel", "vertex_accel", "field_accel") or cfg.optimize_stiffness)
+    p = {k: v.to(device).requires_grad_(k in ("const_accel", "vertex_accel", "field_accel", "light") or cfg.optimize_stiffness)
          for k, v in saved["params"].items()}
     params = ShapeParams(**p)
     state = ShapeState(params, _make_optimizer(params, cfg), _make_guard(cfg), saved["epoch"],
@@ -282,9 +290,10 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
     sums = {"image": 0.0, "silhouette": 0.0}
     depths = []
     batch = render_chunk(positions.device)
+    light = params.light.to(torch.float32) if params.light is not None else None
     for lo in range(0, n_win, batch):
         hi = min(n_win, lo + batch)
-        out = ctx.render(pos_leaf[lo:hi], texture)
+        out = ctx.render(pos_leaf[lo:hi], texture, light)
         if tracks is not None and cfg.track_occlusion:
             depths.append(out.depth.detach())
         rgb, mask = out.rgb, out.mask

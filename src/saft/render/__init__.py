@@ -28,8 +28,9 @@ texture(tex (B|1, Ht, Wt, C), uv (B, H, W, 2), uv_da=None, filter_mode="auto", b
 antialias(color (B, H, W, C), rast, pos, tri) -> (B, H, W, C), gradients to pos on every silhouette edge
     (mesh boundary, and fold edges between front- and back-facing triangles)
 render_cloth(vertices (B, V, 3) | (V, 3), triangles (T, 3), uvs (V, 2), texture (Ht, Wt, 3), camera,
-    rasterizer=None, *, near=None, far=None, max_mip_level=None) -> RenderOutput(rgb, mask, depth,
-    normals, rast, pos_clip)
+    rasterizer=None, *, near=None, far=None, max_mip_level=None, vertex_shading=None) -> RenderOutput(rgb,
+    mask, depth, normals, rast, pos_clip); vertex_shading (B|1, V, 3): per-vertex colour factors
+    (saft.render.shading.shading_ratio), interpolated in the normals' slot (no normals image then)
 """
 
 from saft.render.backend import antialias, get_rasterizer, interpolate, rasterize, texture

@@ -25,7 +25,7 @@ def _as_tensor(x, like: torch.Tensor, dtype=None) -> torch.Tensor:
 
 def render_cloth(vertices: torch.Tensor, triangles, uvs, texture: torch.Tensor, camera: Camera,
                  rasterizer=None, *, near: float | None = None, far: float | None = None,
-                 max_mip_level: int | None = None) -> RenderOutput:
+                 max_mip_level: int | None = None, vertex_shading: torch.Tensor | None = None) -> RenderOutput:
     """Render textured cloth for the shape and texture phases.
 
     vertices: (B, V, 3) or (V, 3) world-frame positions (differentiable); triangles (T, 3) int;
@@ -33,6 +33,9 @@ def render_cloth(vertices: torch.Tensor, triangles, uvs, texture: torch.Tensor, 
     (Ht, Wt, 3) float, row 0 = top of the image (differentiable), used as it is (sRGB, no lighting);
     camera: saft Camera (already cropped/scaled as wanted; the output has its height and width).
     rasterizer: from get_rasterizer(); default 'auto' for the vertices' device.
+    vertex_shading: optional (B|1, V, 3) per-vertex, per-channel factors (differentiable), interpolated
+    perspective-correctly and multiplied into the texture colour before antialiasing (saft.render.shading).
+    They are interpolated in the slot of the vertex normals, so the output then has no normals image.
     """
     if vertices.dim() == 2:
         vertices = vertices[None]
@@ -44,4 +47,9 @@ def render_cloth(vertices: torch.Tensor, triangles, uvs, texture: torch.Tensor, 
     H, W = camera.height, camera.width
 
     pos = camera_to_clip(vertices, camera, near=near, far=far)
-    return R.render_cloth(vertices, pos, tri, uv, tex, H, W, max_mip_level)
+    if vertex_shading is not None:
+        vertex_shading = vertex_shading.to(vertices.dtype)
+        if vertex_shading.dim() == 2:
+            vertex_shading = vertex_shading[None]
+        vertex_shading = vertex_shading.expand(vertices.shape[0], -1, -1)
+    return R.render_cloth(vertices, pos, tri, uv, tex, H, W, max_mip_level, vertex_shading)

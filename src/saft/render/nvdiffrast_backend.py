@@ -44,9 +44,10 @@ class NvdiffrastRasterizer:
         return tri.to(device=self.device, dtype=torch.int32).contiguous()
 
     def render_cloth(self, vertices: torch.Tensor, pos: torch.Tensor, tri: torch.Tensor, uv: torch.Tensor,
-                     tex: torch.Tensor, H: int, W: int, max_mip_level: int | None) -> RenderOutput:
+                     tex: torch.Tensor, H: int, W: int, max_mip_level: int | None,
+                     shading: torch.Tensor | None = None) -> RenderOutput:
         """saft.render.render_cloth's backend call (arguments prepared there): the four primitives."""
-        return render_cloth_primitives(self, vertices, pos, tri, uv, tex, H, W, max_mip_level)
+        return render_cloth_primitives(self, vertices, pos, tri, uv, tex, H, W, max_mip_level, shading)
 
     def rasterize(self, pos: torch.Tensor, tri: torch.Tensor, resolution, with_db: bool = False):
         if pos.dim() == 2:

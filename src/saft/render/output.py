@@ -49,3 +49,8 @@ def vertex_normals(vertices: torch.Tensor, tri: torch.Tensor) -> torch.Tensor:
     fn = torch.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0], dim=-1)  # length = 2·area
     n = torch.zeros_like(vertices).index_add(1, tri.T.reshape(-1), fn.repeat(1, 3, 1))
     return n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
+def no_normals() -> torch.Tensor:
+    """RenderOutput.normals of a render with vertex_shading: the shading took the normals' slot."""
+    raise ValueError("this render interpolated vertex_shading in the normals' slot: it has no normals image")

@@ -15,7 +15,7 @@ import math
 
 import torch
 
-from saft.render.output import RenderOutput, vertex_normals
+from saft.render.output import RenderOutput, no_normals, vertex_normals
 from saft.render.torch.antialias import antialias_core
 from saft.render.torch.raster import W_EPS, visibility
 from saft.render.torch.rows import ScatterPlanar, scatter_rows
@@ -304,10 +304,11 @@ def texture_fast(tex: torch.Tensor, u: torch.Tensor, v: torch.Tensor, uv_da: tor
     return _TexFn.apply(tex, u, v, lo, frac, n_levels)
 
 
-def render_cloth_fused(vertices, pos, tri, uv, tex, H, W, max_mip_level) -> RenderOutput:
+def render_cloth_fused(vertices, pos, tri, uv, tex, H, W, max_mip_level, shading=None) -> RenderOutput:
     """The same pipeline on the covered pixels only: one per-triangle table of plane coefficients
     (plane_table) evaluated per pixel with a hand-written backward, texture on the covered pixels, and
-    dense images only at the end; identical in value to the primitive pipeline (tested)."""
+    dense images only at the end; identical in value to the primitive pipeline (tested). shading: None or
+    (B, V, 3) per-vertex factors, interpolated in the normals' columns and multiplied into the colour."""
     B, V, _ = vertices.shape
     T = tri.shape[0]
     n_pix = B * H * W
@@ -325,10 +326,12 @@ def render_cloth_fused(vertices, pos, tri, uv, tex, H, W, max_mip_level) -> Rend
         nx = (2.0 * pcol.to(pos.dtype) + 1.0) / W - 1.0
         ny = (2.0 * prow.to(pos.dtype) + 1.0) / H - 1.0
     uv_tex = torch.stack([uv[:, 0], 1.0 - uv[:, 1]], dim=-1)
-    normals_v = vertex_normals(vertices, tri)
+    normals_v = vertex_normals(vertices, tri) if shading is None else shading
     table = plane_table(pos, tri, uv_tex, normals_v)
     uv_pix, depth_c, n, bw, zw, uv_da = plane_interp(table, row_idx, nx, ny, H, W)
     rgb_c = texture_fast(tex, uv_pix[0], uv_pix[1], uv_da, max_mip_level=max_mip_level)
+    if shading is not None:
+        rgb_c = rgb_c.to(n.dtype) * n
     rgb_img = ScatterPlanar.apply(rgb_c.to(pos.dtype), pix, n_pix).reshape(B, H, W, 3)
     cov_img = pos.new_zeros(n_pix).index_fill_(0, pix, 1.0).reshape(B, H, W)  # coverage, no gradient
     with torch.no_grad():
@@ -347,4 +350,5 @@ def render_cloth_fused(vertices, pos, tri, uv, tex, H, W, max_mip_level) -> Rend
             return pos.new_zeros(n_pix, 4).index_copy_(
                 0, pix, torch.stack([bw[0], bw[1], zw, (tid + 1).to(pos.dtype)], dim=-1)).reshape(B, H, W, 4)
 
-    return RenderOutput(rgb=rgb, mask=mask, depth=depth, normals=normals_image, rast=rast_image, pos_clip=pos)
+    return RenderOutput(rgb=rgb, mask=mask, depth=depth, normals=normals_image if shading is None else no_normals,
+                        rast=rast_image, pos_clip=pos)

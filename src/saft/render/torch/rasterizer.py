@@ -27,10 +27,11 @@ class TorchRasterizer:
 
     @staticmethod
     def render_cloth(vertices: torch.Tensor, pos: torch.Tensor, tri: torch.Tensor, uv: torch.Tensor,
-                     tex: torch.Tensor, H: int, W: int, max_mip_level: int | None) -> RenderOutput:
+                     tex: torch.Tensor, H: int, W: int, max_mip_level: int | None,
+                     shading: torch.Tensor | None = None) -> RenderOutput:
         """saft.render.render_cloth's backend call (arguments prepared there): the fused kernels."""
         tex3 = tex if tex.dim() == 3 else tex[0]  # the fused path takes (Ht, Wt, C) as it is (no select backward)
-        return render_cloth_fused(vertices, pos, tri, uv, tex3, H, W, max_mip_level)
+        return render_cloth_fused(vertices, pos, tri, uv, tex3, H, W, max_mip_level, shading)
 
     def __repr__(self) -> str:
         return f"TorchRasterizer(device={self.device})"
