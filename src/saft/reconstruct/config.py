@@ -142,8 +142,8 @@ class ShapeConfig:
     # the paper's unlit renderer): the shape renderer darkens or brightens each vertex as its normal turns
     # from frame 0's, so that a cloth tilting away from the light can be told from one tilting towards it.
     # Off by default: 0.05 halved the wind scene's error without pins (a_unpinned, median of 3: 1.11 ->
-    # 0.62) and left the other scenes within their noise, but made R1 5 % worse and its last frame 2.1x
-    # its mean (issue 11 asks <= 2x). BENCHMARKS.md, "Relative shading in the shape renderer".
+    # 0.62) and left the other scenes within their noise, but R1's median went 0.438 -> 0.461 with the
+    # last frame 2.1x the mean (issue 11 asks <= 2x). BENCHMARKS.md, "Relative shading in the shape renderer".
     lr_light: float = 0.0
     normalize_loss: bool = True           # divide the loss by its detached value before backward
     grad_clip: float = 1e3
