@@ -139,4 +139,3 @@ def test_the_light_exists_only_at_a_positive_rate_and_is_restored_from_a_checkpo
         on.params.light += torch.tensor([0.1, -0.2, 0.3], dtype=torch.float64)
     back = restore_shape_state(on.state_dict(), cfg, "cpu")
     assert torch.equal(back.params.light, on.params.light) and back.params.light.requires_grad
-

@@ -1,10 +1,31 @@
 """The torch backend makes the normals and rast images only when they are read (the shape phase reads
 neither); reading them gives the same images as the four-primitive reference pipeline."""
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import torch
 
 from saft.render.output import RenderOutput
+
+sys.path.insert(0, str(Path(__file__).parent))
+from _render_helpers import grid, pinhole, smooth_texture  # noqa: E402
+
+
+def _jittered_sheet(generator: torch.Generator, dtype=torch.float32):
+    """A 4 × 4-vertex sheet, jittered by 1 cm: vertices (1, 16, 3), triangles, uvs."""
+    xs, ys = np.meshgrid(np.linspace(-0.3, 0.3, 4), np.linspace(-0.3, 0.3, 4))
+    verts = torch.tensor(np.stack([xs, ys, np.zeros_like(xs)], -1).reshape(-1, 3), dtype=dtype)
+    verts = (verts + 0.01 * torch.randn(verts.shape, generator=generator, dtype=dtype))[None]
+    quads = [(r * 4 + c, r * 4 + c + 1, r * 4 + c + 5, r * 4 + c + 4) for r in range(3) for c in range(3)]
+    tri = torch.tensor([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], dtype=torch.int64)
+    return verts, tri, (verts[0, :, :2] + 0.5).clamp(0, 1)
+
+
+def _clip(verts: torch.Tensor) -> torch.Tensor:
+    """An orthographic clip-space position of the sheet, filling most of the image."""
+    return torch.cat([2.5 * verts[..., :2], 0.5 + 0 * verts[..., 2:], torch.ones_like(verts[..., :1])], dim=-1)
 
 
 def test_render_output_makes_a_lazy_image_once():
@@ -28,13 +49,8 @@ def test_fused_normals_and_rast_on_demand_match_the_reference():
     from saft.render.torch.rasterizer import TorchRasterizer
 
     g = torch.Generator().manual_seed(0)
-    xs, ys = np.meshgrid(np.linspace(-0.3, 0.3, 4), np.linspace(-0.3, 0.3, 4))
-    verts = torch.tensor(np.stack([xs, ys, np.zeros_like(xs)], -1).reshape(-1, 3), dtype=torch.float32)
-    verts = (verts + 0.01 * torch.randn(verts.shape, generator=g))[None]
-    quads = [(r * 4 + c, r * 4 + c + 1, r * 4 + c + 5, r * 4 + c + 4) for r in range(3) for c in range(3)]
-    tri = torch.tensor([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], dtype=torch.int64)
-    uv = (verts[0, :, :2] + 0.5).clamp(0, 1)
-    pos = torch.cat([2.5 * verts[..., :2], 0.5 + 0 * verts[..., 2:], torch.ones_like(verts[..., :1])], dim=-1)
+    verts, tri, uv = _jittered_sheet(g)
+    pos = _clip(verts)
     tex = torch.rand(8, 8, 3, generator=g)
     fused = TorchRasterizer.render_cloth(verts, pos, tri, uv, tex, 24, 24, None)
     ref = render_cloth_primitives(TorchRasterizer(), verts, pos, tri, uv, tex, 24, 24, None)
@@ -52,12 +68,7 @@ def test_fused_vertex_shading_matches_the_reference_in_value_and_gradient():
     from saft.render.torch.rasterizer import TorchRasterizer
 
     g = torch.Generator().manual_seed(1)
-    xs, ys = np.meshgrid(np.linspace(-0.3, 0.3, 4), np.linspace(-0.3, 0.3, 4))
-    base = torch.tensor(np.stack([xs, ys, np.zeros_like(xs)], -1).reshape(-1, 3), dtype=torch.float64)
-    base = (base + 0.01 * torch.randn(base.shape, generator=g, dtype=torch.float64))[None]
-    quads = [(r * 4 + c, r * 4 + c + 1, r * 4 + c + 5, r * 4 + c + 4) for r in range(3) for c in range(3)]
-    tri = torch.tensor([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], dtype=torch.int64)
-    uv = (base[0, :, :2] + 0.5).clamp(0, 1)
+    base, tri, uv = _jittered_sheet(g, torch.float64)
     tex = torch.rand(8, 8, 3, generator=g, dtype=torch.float64)
     shade0 = 0.5 + torch.rand(1, 16, 3, generator=g, dtype=torch.float64)
     weights = torch.rand(1, 24, 24, 3, generator=g, dtype=torch.float64)
@@ -66,23 +77,18 @@ def test_fused_vertex_shading_matches_the_reference_in_value_and_gradient():
                lambda *a: render_cloth_primitives(TorchRasterizer(), *a)):
         verts = base.clone().requires_grad_(True)
         shade = shade0.clone().requires_grad_(True)
-        pos = torch.cat([2.5 * verts[..., :2], 0.5 + 0 * verts[..., 2:], torch.ones_like(verts[..., :1])], -1)
-        out = fn(verts, pos, tri, uv, tex, 24, 24, None, shade)
+        out = fn(verts, _clip(verts), tri, uv, tex, 24, 24, None, shade)
         (out.rgb * weights).sum().backward()
         results.append((out.rgb.detach(), shade.grad, verts.grad))
     (rgb_f, gs_f, gv_f), (rgb_r, gs_r, gv_r) = results
-    unshaded = TorchRasterizer.render_cloth(base, torch.cat([2.5 * base[..., :2], 0.5 + 0 * base[..., 2:],
-                                                             torch.ones_like(base[..., :1])], -1),
-                                            tri, uv, tex, 24, 24, None)
+    unshaded = TorchRasterizer.render_cloth(base, _clip(base), tri, uv, tex, 24, 24, None)
     assert not torch.allclose(rgb_f, unshaded.rgb, atol=1e-3)   # the factors do change the image
     assert torch.allclose(rgb_f, rgb_r, atol=1e-9)
     assert gs_f.abs().sum() > 0
     assert torch.allclose(gs_f, gs_r, atol=1e-8)
     assert torch.allclose(gv_f, gv_r, atol=1e-8)
     try:
-        unused = TorchRasterizer.render_cloth(base, torch.cat([2.5 * base[..., :2], 0.5 + 0 * base[..., 2:],
-                                                               torch.ones_like(base[..., :1])], -1),
-                                              tri, uv, tex, 24, 24, None, shade0).normals
+        unused = TorchRasterizer.render_cloth(base, _clip(base), tri, uv, tex, 24, 24, None, shade0).normals
     except ValueError as exc:
         assert "vertex_shading" in str(exc)
     else:
@@ -113,12 +119,6 @@ def test_shading_ratio_is_one_without_light_and_follows_the_normal():
 def test_the_light_is_recovered_from_images_of_a_turning_sheet():
     """Frames of a sheet turning about its top edge, shaded with a known light relative to frame 0: fitting
     the light alone through render_cloth(vertex_shading=shading_ratio(...)) finds it again."""
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from _render_helpers import grid, pinhole, smooth_texture
-
     from saft.render import render_cloth
     from saft.render.shading import facing_normals, shading_ratio
 

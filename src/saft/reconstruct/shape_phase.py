@@ -156,8 +156,8 @@ def new_shape_state(num_frames: int, num_vertices: int, gravity: np.ndarray, phy
 
 
 def restore_shape_state(saved: dict, cfg: ShapeConfig, device) -> ShapeState:
-    p = {k: v.to(device).requires_grad_(k in ("const_accel", "vertex_accel", "field_accel", "light") or cfg.optimize_stiffness)
-         for k, v in saved["params"].items()}
+    always_learned = ("const_accel", "vertex_accel", "field_accel", "light")
+    p = {k: v.to(device).requires_grad_(k in always_learned or cfg.optimize_stiffness) for k, v in saved["params"].items()}
     params = ShapeParams(**p)
     state = ShapeState(params, _make_optimizer(params, cfg), _make_guard(cfg), saved["epoch"],
                        schedule=saved.get("schedule"))
