@@ -31,15 +31,22 @@ def _setup(seed=0, n=4, wave=0.02):
     return t, x0, v0, p, W
 
 
-def _gradcheck(mode, pinned=None, pinned_positions=None, x0_eps=1e-6):
+def _gradcheck(mode, pinned=None, pinned_positions=None, x0_eps=1e-6, anchored=False):
     t, x0, v0, p, W = _setup()
     kw = dict(num_frames=N, hessian=mode, tol=1e-13, pinned=pinned, pinned_positions=pinned_positions)
+    if anchored:
+        # stiff and weak anchors (w h^2 from 0 to 10), pulling towards points off the start state
+        g = torch.Generator().manual_seed(3)
+        p.anchor = 4e5 * torch.rand(t.num_vertices, generator=g, dtype=torch.float64) ** 2
+        kw["anchor_positions"] = t.template + 0.01 * torch.randn(t.template.shape, generator=g, dtype=torch.float64)
 
     def loss():
         return (rollout(t, x0, v0, p, **kw) * W).sum()
 
     leaves = dict(x0=x0, v0=v0, log10_Y=p.log10_Y, log10_B=p.log10_B, log10_S=p.log10_S,
                   damping=p.damping, a_const=p.a_const, a_vert=p.a_vert)
+    if anchored:
+        leaves["anchor"] = p.anchor
     for val in leaves.values():
         val.requires_grad_(True)
     loss().backward()
@@ -49,7 +56,7 @@ def _gradcheck(mode, pinned=None, pinned_positions=None, x0_eps=1e-6):
         d = torch.randn(val.shape, generator=g, dtype=val.dtype)
         if pinned is not None and name in ("x0", "v0"):
             d[pinned] = 0.0  # pinned targets are constants (documented)
-        eps = x0_eps if name == "x0" else 1e-6
+        eps = x0_eps if name == "x0" else (1e-6 * float(val.detach().abs().max()) if name == "anchor" else 1e-6)
         with torch.no_grad():
             val.add_(eps * d)
             lp = loss()
@@ -75,6 +82,30 @@ def test_rollout_gradients_vs_finite_differences_pinned():
     # projected Hessian: springs crossing their rest length are kinks of the dynamics, so x0 needs a
     # small step (the exact-Hessian dynamics of this pinned, compressed cloth blow up: not tested here)
     _gradcheck("projected", pinned=[0, 1, 2, 3, 4], x0_eps=1e-8)
+
+
+def test_rollout_gradients_vs_finite_differences_anchored():
+    _gradcheck("projected", anchored=True, x0_eps=1e-8)
+
+
+def test_rollout_gradients_vs_finite_differences_anchored_and_pinned():
+    _gradcheck("projected", pinned=[0, 1, 2], anchored=True, x0_eps=1e-8)
+
+
+def test_stiff_anchors_hold_vertices_like_pins_and_zero_anchors_change_nothing():
+    v, q = grid_mesh(6, plane="xy")
+    t = ClothTopology.from_quads(v, q)
+    top = np.arange(7)  # row 0: the top edge
+    p = PhysicsParams.default()
+    free = rollout(t, t.template, None, p, num_frames=8)
+    p.anchor = torch.zeros(t.num_vertices, dtype=torch.float64)
+    assert torch.equal(rollout(t, t.template, None, p, num_frames=8), free)
+    pinned = rollout(t, t.template, None, PhysicsParams.default(), num_frames=8, pinned=top)
+    p.anchor[top] = 1e9  # w h^2 = 2.5e4: the top edge is held to within a micrometre
+    held = rollout(t, t.template, None, p, num_frames=8)
+    assert (held[:, top] - t.template[top]).abs().max() < 1e-5
+    assert (held - pinned).abs().max() < 1e-4
+    assert (free[-1, top] - t.template[top]).abs().max() > 0.01  # without anchors it falls
 
 
 def test_one_substep_solves_the_linearised_backward_eulergrid_system():

@@ -13,17 +13,20 @@ Public API
     E_Y + E_B + E_S (or the three terms) for x of shape (..., V, 3); plain autograd, batched over frames;
     differentiable in x and the log-stiffnesses (detach them for the regularizer R_E).
 
-``PhysicsParams(log10_Y, log10_B, log10_S, damping, a_const, a_vert=None)``;
+``PhysicsParams(log10_Y, log10_B, log10_S, damping, a_const, a_vert=None, anchor=None)``;
 ``PhysicsParams.default(num_frames, num_vertices, device=..., requires_grad=...)``
     Paper defaults: Y = 200, B = 1e-3, S = 1e-4, damping d = 0.9 (v <- d v before every substep),
     a_const = gravity (0, -9.81, 0), a_vert (N - 1, V, 3) = 0; f_ext = m (a_const + a_vert[k]) during the
-    substeps from frame k to k + 1.
+    substeps from frame k to k + 1. anchor (V,): soft pins, a zero-length spring of stiffness m_i w_i (w in
+    s^-2) from each vertex to its anchor position, treated implicitly (w h^2 >> 1 holds the vertex).
 
 ``rollout(topology, x0, v0=None, params=None, *, num_frames, substeps=4, frame_dt=0.02, pinned=None,
-          pinned_positions=None, hessian="projected", solver="auto", tol=1e-6, stats=None)``
+          pinned_positions=None, hessian="projected", solver="auto", tol=1e-6, stats=None,
+          anchor_positions=None)``
     -> positions (num_frames, V, 3), positions[0] = x0. Linearised backward Euler
     (M + h^2 K) v1 = M d v + h (f + M a_ext), x1 = x + h v1. Gradients (one custom adjoint backward, no
-    unrolled solver) reach x0, v0, log10 Y/B/S, damping, a_const, a_vert. Pinned vertices stay exactly at
+    unrolled solver) reach x0, v0, log10 Y/B/S, damping, a_const, a_vert, anchor (the anchors pull towards
+    anchor_positions, default x0, which get no gradient). Pinned vertices stay exactly at
     x0 or at pinned_positions (N, P, 3) (linear within a frame). NaN/inf raises
     ``saft.errors.SimulationError`` naming the frame and substep.
 

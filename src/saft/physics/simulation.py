@@ -4,6 +4,8 @@ One substep (h = frame_dt / substeps), with v <- d * v first (velocity damping):
     (M + h^2 K(x)) v1 = M (d v) + h (f(x) + M a_ext),   f = -dE/dx,   x1 = x + h v1
 a_ext = a_const + a_vert[k] during the substeps from frame k to frame k + 1.
 
+Soft anchors (params.anchor = w, per unit mass): f += -m w (x - p), with h^2 m w on A's diagonal.
+
 Pinned vertices: their velocity is prescribed, v1_P = (target - x_P) / h, and the system is solved for the
 free DOFs only (rows/columns of P replaced by the identity); x1_P is set to the target exactly.
 
@@ -47,6 +49,9 @@ class PhysicsParams:
     a_const: (3,) constant acceleration (gravity + mean wind), m/s^2.
     a_vert: (N - 1, V, 3) per-vertex per-frame accelerations, or None (zero); a rollout of fewer frames
             uses the first ones.
+    anchor: (V,) anchor stiffness per unit mass w (s^-2, >= 0), or None (no anchors): vertex i is pulled
+            towards its anchor position p_i by the force -m_i w_i (x_i - p_i), a zero-length spring treated
+            implicitly like the cloth's own forces (a soft pin; w h^2 >> 1 holds the vertex in place).
     """
 
     log10_Y: torch.Tensor
@@ -55,6 +60,7 @@ class PhysicsParams:
     damping: torch.Tensor
     a_const: torch.Tensor
     a_vert: torch.Tensor | None = None
+    anchor: torch.Tensor | None = None
 
     @classmethod
     def default(cls, num_frames: int | None = None, num_vertices: int | None = None, *, device=None,
@@ -76,7 +82,9 @@ class PhysicsParams:
         return p
 
     def tensors(self):
-        return (self.log10_Y, self.log10_B, self.log10_S, self.damping, self.a_const, self.a_vert)
+        """The parameters in constructor order; the anchors only when there are any."""
+        base = (self.log10_Y, self.log10_B, self.log10_S, self.damping, self.a_const, self.a_vert)
+        return base if self.anchor is None else base + (self.anchor,)
 
 
 def _solver_for(topology: ClothTopology, solver: str, tol: float, stats: SolveStats):
@@ -102,8 +110,9 @@ class _Sim:
     """Everything a rollout needs besides the differentiable inputs."""
 
     def __init__(self, topology, num_frames, substeps, frame_dt, pinned, pinned_positions, hessian, solver, tol,
-                 compile=None, kernels=None):
+                 compile=None, kernels=None, anchor_positions=None):
         t = topology
+        self.anchor_positions = anchor_positions
         self.t = t
         self.V = t.num_vertices
         self.N = int(num_frames)
@@ -153,6 +162,12 @@ class _Sim:
             return x0[self.pinned]
         w = (s + 1) / self.substeps
         return (1.0 - w) * self.pin_targets[k] + w * self.pin_targets[k + 1]
+
+    def anchor_system(self, A, anchor_mass):
+        """A + h^2 diag(m w): the anchors' springs in the system matrix (anchor_mass = m w, (V, 3))."""
+        if anchor_mass is None:
+            return A
+        return A.index_add(0, self.t.diag_idx, (self.h * self.h) * anchor_mass.reshape(-1))
 
     def system(self, ev: ElementEval):
         """(K data, A data) with A = M + h^2 K, before pinning."""
@@ -212,7 +227,7 @@ def _one_cpu_thread(fn):
 class _RolloutFn(torch.autograd.Function):
     @staticmethod
     @_one_cpu_thread
-    def forward(ctx, sim: _Sim, x0, v0, lY, lB, lS, damping, a_const, a_vert):
+    def forward(ctx, sim: _Sim, x0, v0, lY, lB, lS, damping, a_const, a_vert, anchor):
         t = sim.t
         Y, B, S = (10.0 ** float(lY)), (10.0 ** float(lB)), (10.0 ** float(lS))
         d = float(damping)
@@ -234,6 +249,10 @@ class _RolloutFn(torch.autograd.Function):
         # keep the system matrices for the adjoint pass when they fit the memory budget
         keep_A = (N - 1) * ns * t.nnz * x0.element_size() <= sim.keep_matrices_bytes
         A_saved = []
+        anchor_mass = None if anchor is None else m3 * anchor.detach()[:, None]  # m w, (V, 3)
+        if anchor is not None:
+            _check(anchor, "input anchor", 0, 0)
+            anchor_at = sim.anchor_positions
         for k in range(N - 1):
             a = a_const if a_vert is None else a_const + a_vert[k]
             _check(a, "external acceleration", k, 0)
@@ -243,6 +262,9 @@ class _RolloutFn(torch.autograd.Function):
                 saved[i, 1] = v
                 vd = d * v
                 gradE, A = kern.forward(x, Yt, Bt, St, hh, sim.mass_diag, t.diag_idx)  # (V, 3), (nnz,)
+                if anchor_mass is not None:
+                    gradE = gradE + anchor_mass * (x - anchor_at)
+                    A = sim.anchor_system(A, anchor_mass)
                 b = (m3 * vd + h * (m3 * a - gradE)).reshape(-1)
                 if pinned is not None:
                     tgt = sim.target(x0, k, s)
@@ -270,15 +292,18 @@ class _RolloutFn(torch.autograd.Function):
         ctx.sim = sim
         ctx.solver = solver
         ctx.A_saved = A_saved if keep_A else None
-        ctx.save_for_backward(x0, saved, lY, lB, lS, damping, a_const, a_vert if a_vert is not None else x0.new_empty(0))
+        empty = x0.new_empty(0)
+        ctx.save_for_backward(x0, saved, lY, lB, lS, damping, a_const, a_vert if a_vert is not None else empty,
+                              anchor if anchor is not None else empty)
         ctx.has_avert = a_vert is not None
+        ctx.has_anchor = anchor is not None
         return positions
 
     @staticmethod
     @_one_cpu_thread
     def backward(ctx, grad_pos):
         sim: _Sim = ctx.sim
-        x0, saved, lY, lB, lS, damping, a_const, a_vert = ctx.saved_tensors
+        x0, saved, lY, lB, lS, damping, a_const, a_vert, anchor = ctx.saved_tensors
         t = sim.t
         Y, B, S = (10.0 ** float(lY)), (10.0 ** float(lB)), (10.0 ** float(lS))
         d = float(damping)
@@ -298,6 +323,8 @@ class _RolloutFn(torch.autograd.Function):
         gS = torch.zeros_like(gY)
         gd = torch.zeros_like(gY)
         lam_guess = torch.zeros(3 * V, dtype=x0.dtype, device=x0.device)
+        anchor_mass = m3 * anchor[:, None] if ctx.has_anchor else None
+        g_anchor = torch.zeros(V, 3, dtype=x0.dtype, device=x0.device) if ctx.has_anchor else None
         for k in range(N - 2, -1, -1):
             for s in range(ns - 1, -1, -1):
                 i = k * ns + s
@@ -308,7 +335,7 @@ class _RolloutFn(torch.autograd.Function):
                 if ctx.A_saved is not None:
                     A = ctx.A_saved[i]
                 else:
-                    A = kern.forward(x, Yt, Bt, St, hh, sim.mass_diag, t.diag_idx)[1]
+                    A = sim.anchor_system(kern.forward(x, Yt, Bt, St, hh, sim.mass_diag, t.diag_idx)[1], anchor_mass)
                     if pinned is not None:
                         A = A * sim.keep
                         A[sim.pin_diag] = 1.0
@@ -323,6 +350,10 @@ class _RolloutFn(torch.autograd.Function):
                 # stiffness terms -h lam.dE_k/dx - h^2 lam^T K_k v1 (each linear in its stiffness)
                 dgx, dY, dB, dS = kern.adjoint(x, lamV, v1, Yt, Bt, St, ht)
                 gx = gx + dgx
+                if anchor_mass is not None:
+                    # lam.(b - A v1) holds -h m w lam.(x + h v1 - p): d/dx = -h m w lam, d/dw = -h m lam.(x1 - p)
+                    gx = gx - h * anchor_mass * lamV
+                    g_anchor -= h * (m3 * lamV) * (x + h * v1 - sim.anchor_positions)
                 mlam = m3 * lamV
                 gd += (mlam * v).sum()
                 g_a[k] += h * mlam
@@ -352,6 +383,7 @@ class _RolloutFn(torch.autograd.Function):
             gd,
             g_const,
             g_a if ctx.has_avert else None,
+            g_anchor.sum(dim=1) if ctx.has_anchor else None,
         )
 
 
@@ -372,6 +404,7 @@ def rollout(
     stats: dict | None = None,
     compile: bool | None = None,
     kernels: str | None = None,
+    anchor_positions: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Simulate ``num_frames`` video frames from (x0, v0); returns positions (num_frames, V, 3) with
     positions[0] = x0. Differentiable w.r.t. x0, v0 and every tensor in ``params``.
@@ -388,6 +421,7 @@ def rollout(
     variable, off by default; falls back to eager with a warning if compilation fails).
     kernels: element kernel backend, "auto" (numba on CPU float64 with the projected Hessian unless compile
     is on, else torch), "numba" or "torch" (None: the SAFT_PHYSICS_KERNELS environment variable, "auto").
+    anchor_positions: (V, 3) where params.anchor's springs pull (None: x0); constants, no gradient.
     Raises SimulationError (naming frame and substep) on NaN/inf.
     """
     t = topology
@@ -409,8 +443,20 @@ def rollout(
             )
         # longer is fine (frames added progressively): the unused frames get zero gradient
         a_vert = a_vert[: num_frames - 1]
+    anchor = params.anchor
+    if anchor is not None:
+        anchor = torch.as_tensor(anchor).to(device=dev, dtype=dt)
+        if anchor.shape != (t.num_vertices,):
+            raise ValueError(f"anchor must have shape ({t.num_vertices},), got {tuple(anchor.shape)}")
+        if anchor_positions is None:
+            anchor_positions = x0
+        anchor_positions = torch.as_tensor(anchor_positions).to(device=dev, dtype=dt)
+        if anchor_positions.shape != (t.num_vertices, 3):
+            raise ValueError(f"anchor_positions must have shape ({t.num_vertices}, 3), "
+                             f"got {tuple(anchor_positions.shape)}")
+        anchor_positions = anchor_positions.detach()
     sim = _Sim(t, num_frames, substeps, frame_dt, pinned, pinned_positions, hessian, solver, tol, compile,
-               kernels)
+               kernels, anchor_positions if anchor is not None else None)
     sim.stats_out = stats
     f = dict(device=dev, dtype=dt)
 
@@ -419,7 +465,7 @@ def rollout(
 
     out = _RolloutFn.apply(
         sim, x0, v0, sc(params.log10_Y), sc(params.log10_B), sc(params.log10_S), sc(params.damping),
-        torch.as_tensor(params.a_const).to(**f).reshape(3), a_vert,
+        torch.as_tensor(params.a_const).to(**f).reshape(3), a_vert, anchor,
     )
     if stats is not None:
         stats.update(sim.stats.as_dict())
