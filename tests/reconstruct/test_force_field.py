@@ -139,3 +139,52 @@ def test_the_light_exists_only_at_a_positive_rate_and_is_restored_from_a_checkpo
         on.params.light += torch.tensor([0.1, -0.2, 0.3], dtype=torch.float64)
     back = restore_shape_state(on.state_dict(), cfg, "cpu")
     assert torch.equal(back.params.light, on.params.light) and back.params.light.requires_grad
+
+
+def test_anchors_exist_where_nothing_is_pinned_start_held_and_survive_a_checkpoint():
+    from saft.reconstruct.shape_phase import anchors_on, initial_const_accel, new_shape_state, restore_shape_state
+
+    cfg = ShapeConfig(anchors="auto", anchor_log10_init=9.0)
+    assert anchors_on(None, cfg) and anchors_on(np.zeros(0, dtype=int), cfg)
+    assert not anchors_on(np.arange(3), cfg)
+    assert anchors_on(np.arange(3), ShapeConfig(anchors="on")) and not anchors_on(None, ShapeConfig(anchors="off"))
+    g = np.array([0.0, -9.81, 0.0])
+    assert np.array_equal(initial_const_accel(g, None, cfg), g)   # anchored: the cloth hangs under gravity
+    assert np.array_equal(initial_const_accel(g, None, ShapeConfig(anchors="off")), np.zeros(3))
+    assert not anchors_on(None, cfg, gravity_stated=False)          # a guessed gravity: the floating cloth
+    assert np.array_equal(initial_const_accel(g, None, cfg, gravity_stated=False), np.zeros(3))
+    assert anchors_on(None, ShapeConfig(anchors="on"), gravity_stated=False)
+    state = new_shape_state(6, 36, g, PhysicsConfig(), cfg, "cpu", anchors=True)
+    a = state.params.anchor_log10
+    assert a.shape == (36,) and a.requires_grad and torch.equal(a, torch.full((36,), 9.0, dtype=torch.float64))
+    assert "anchor_log10" in state.params.tensors()
+    assert "anchor_log10" not in new_shape_state(6, 36, g, PhysicsConfig(), cfg, "cpu").params.tensors()
+    with torch.no_grad():
+        a[:5] = 2.0
+    back = restore_shape_state(state.state_dict(), cfg, "cpu")
+    assert torch.equal(back.params.anchor_log10, a) and back.params.anchor_log10.requires_grad
+
+
+def test_held_share_is_linear_in_log_stiffness_up_to_held_and_flat_above():
+    from saft.reconstruct.shape_phase import ShapeSimulator, ShapeParams
+    from saft.synthetic import grid_template
+
+    mesh = grid_template(2, 0.3)
+    sim = ShapeSimulator(torch.tensor(mesh.vertices), mesh.quads, PhysicsConfig(substeps=4), 0.02, None)
+    held_at = np.log10(10.0 / 0.005 ** 2)   # w h² = 10 with h = 5 ms
+    zero = torch.zeros((), dtype=torch.float64)
+
+    def share(values):
+        u = torch.tensor(values, dtype=torch.float64, requires_grad=True)
+        p = ShapeParams(zero, zero, zero, torch.zeros(3, dtype=torch.float64), torch.zeros(1, 9, 3), anchor_log10=u)
+        s = sim.held_share(p, floor=0.0)
+        s.backward()
+        return float(s.detach()), u.grad
+
+    assert share([0.0] * 9)[0] == 0.0
+    assert share([held_at / 2] * 9)[0] == pytest.approx(0.5)
+    value, grad = share([held_at + 3.0] * 8 + [held_at / 4])
+    assert value == pytest.approx((8 + 0.25) / 9)
+    assert torch.all(grad[:8] == 0) and grad[8] > 0   # a held vertex feels no pull from the penalty
+    assert float(sim.held_share(ShapeParams(zero, zero, zero, torch.zeros(3), torch.zeros(1, 9, 3)), 0.0)) == 0.0
+

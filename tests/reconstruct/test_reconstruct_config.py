@@ -86,3 +86,16 @@ def test_physics_hessian_reaches_the_simulator():
             runs[mode] = sim.simulate(state.params, 4)
     assert torch.isfinite(runs["exact"]).all()
     assert (runs["exact"] - runs["projected"]).abs().max() > 1e-6
+
+
+@pytest.mark.parametrize("override, message", [
+    ("shape.anchor_log10_range=[5, 1]", "shape.anchor_log10_range must be [low, high]"),
+    ("shape.anchor_log10_init=12", "shape.anchor_log10_init = 12.0 lies outside"),
+    ("shape.lambda_anchor=-1", "shape.lambda_anchor must lie in"),
+    ('shape.anchors="maybe"', "shape.anchors must be one of"),
+])
+def test_bad_anchor_settings_are_rejected(override, message):
+    from saft.reconstruct.config import load_saft_config
+
+    with pytest.raises(SaftInputError, match=message.replace("(", r"\(").replace("[", r"\[")):
+        load_saft_config(None, [override])

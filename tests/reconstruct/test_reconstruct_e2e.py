@@ -132,3 +132,20 @@ def test_the_relative_shading_learns_a_light_and_saves_it(tiny_scene, tmp_path):
     assert np.isfinite(outcome.positions).all()
     light = json.loads((tmp_path / "lit" / "params.json").read_text())["light"]
     assert len(light) == 3 and max(abs(v) for v in light) > 1e-3
+
+
+def test_without_pins_soft_anchors_hold_the_top_of_a_hanging_cloth(tiny_scene, tmp_path):
+    """A scene that pins nothing but states its gravity: the soft anchors (shape.anchors = "auto") run
+    through the whole pipeline; the top of the cloth (truly held) stays held and most of the rest is let go."""
+    from dataclasses import replace
+
+    scene = replace(tiny_scene.with_frames(5), pinned=None)
+    cfg = load_config(SaftConfig, None, TINY_CONFIG + ["texture.epochs=10", "shape.final_epochs=16",
+                                                       "shape.add_frame_every=2"])
+    outcome = reconstruct(scene, cfg, tmp_path / "anchored", quiet=True)
+    assert np.isfinite(outcome.positions).all()
+    params = json.loads((tmp_path / "anchored" / "params.json").read_text())
+    held = np.array(params["held_vertices"], dtype=int)
+    log_w = np.log10(params["anchor_stiffness"]).reshape(TINY.grid, TINY.grid)   # row 0: the truly held top
+    assert scene.gravity is not None and 0 < len(held) < scene.template.num_vertices / 2
+    assert log_w[:2].mean() > log_w[TINY.grid // 2:].mean() + 2   # held at the top, the lower half let go

@@ -111,6 +111,8 @@ def test_constant_acceleration_starts_at_gravity_only_when_something_holds_the_c
     auto = ShapeConfig()
     assert auto.const_accel_init == "auto"
     assert np.allclose(initial_const_accel(g, np.array([0, 1]), auto), g)
-    assert np.allclose(initial_const_accel(g, None, auto), 0.0)
+    assert np.allclose(initial_const_accel(g, None, auto), g)   # nothing pinned, gravity stated: the anchors hold it
+    assert np.allclose(initial_const_accel(g, None, auto, gravity_stated=False), 0.0)   # floating, as the paper
+    assert np.allclose(initial_const_accel(g, None, ShapeConfig(anchors="off")), 0.0)
     assert np.allclose(initial_const_accel(g, None, ShapeConfig(const_accel_init="gravity")), g)
     assert np.allclose(initial_const_accel(g, np.array([3]), ShapeConfig(const_accel_init="zero")), 0.0)

@@ -19,7 +19,7 @@ def test_r1_camera_and_crop(r1):
     assert np.allclose(r1.camera.world_to_camera, np.diag([-1.0, -1.0, 1.0, 1.0]))
     assert r1.crop == Crop(top=280, left=300, height=700, width=800)
     assert r1.num_frames == 50 and r1.template.num_vertices == 1024 and len(r1.template.quads) == 961
-    assert np.allclose(r1.gravity, [0, -9.81, 0])
+    assert r1.gravity is None and np.allclose(r1.gravity_or_default(), [0, -9.81, 0])   # none given
     assert r1.ground_truth_dir is not None and r1.ground_truth_frame == "camera"
 
 

@@ -43,6 +43,8 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "shape.lr_vertex_accel": (0, INF, True),
     "shape.lr_field_accel": (0, INF, True),
     "shape.lr_light": (0, INF, True),
+    "shape.lr_anchor": (0, INF, True),
+    "shape.lambda_anchor": (0, INF, True),
     "shape.grad_clip": (0, INF, False),
     "shape.autoclip_quantile": (0, 1, False),
     "shape.autoclip_history": (1, INF, True),
@@ -99,3 +101,11 @@ def check_config_ranges(cfg, where: str = "config") -> None:
         if not lo <= init <= hi:
             raise SaftInputError(where, f"physics.log10_{name}_init = {init!r} lies outside "
                                         f"physics.log10_{name}_range [{lo:g}, {hi:g}]")
+    lo, hi = _get(cfg, "shape.anchor_log10_range") or (0.0, 0.0)
+    init = _get(cfg, "shape.anchor_log10_init")
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+        raise SaftInputError(where, "shape.anchor_log10_range must be [low, high] with low <= high, "
+                                    f"got [{lo!r}, {hi!r}]")
+    if init is not None and not lo <= init <= hi:
+        raise SaftInputError(where, f"shape.anchor_log10_init = {init!r} lies outside shape.anchor_log10_range "
+                                    f"[{lo:g}, {hi:g}]")

@@ -33,8 +33,8 @@ from saft.reconstruct.out_dir import check_out_dir, create_out_dir
 from saft.reconstruct.outputs import write_shape_outputs
 from saft.reconstruct.progress import EpochLog, Progress
 from saft.reconstruct.run_identity import check_same_run, run_identity
-from saft.reconstruct.shape_phase import (ShapeSimulator, initial_const_accel, new_shape_state, restore_shape_state,
-                                          run_shape_phase)
+from saft.reconstruct.shape_phase import (ShapeSimulator, anchors_on, initial_const_accel, new_shape_state,
+                                          restore_shape_state, run_shape_phase)
 from saft.reconstruct.texture_phase import initial_texture, new_texture_state, restore_texture_state, run_texture_phase
 from saft.render import get_rasterizer
 from saft.scene import Scene
@@ -72,10 +72,11 @@ def _shape_phase(ctx: PhaseContext, scene: Scene, cfg: SaftConfig) -> None:
     state = ctx.state
     texture = state["texture"].to(ctx.device)
     sim = ShapeSimulator(ctx.template_positions, scene.template.quads, cfg.physics, scene.frame_dt, scene.pinned)
+    stated = scene.gravity is not None
     ss = (restore_shape_state(state["shape_state"], cfg.shape, ctx.device) if "shape_state" in state
           else new_shape_state(scene.num_frames, scene.template.num_vertices,
-                               initial_const_accel(scene.gravity_or_default(), scene.pinned, cfg.shape),
-                               cfg.physics, cfg.shape, ctx.device))
+                               initial_const_accel(scene.gravity_or_default(), scene.pinned, cfg.shape, stated),
+                               cfg.physics, cfg.shape, ctx.device, anchors=anchors_on(scene.pinned, cfg.shape, stated)))
     if cfg.shape.enabled:
         positions = run_shape_phase(ctx, sim, ss, cfg.physics, cfg.shape, texture)
     else:
@@ -212,12 +213,21 @@ def reconstruct(scene: Scene, cfg: SaftConfig, out_dir: str | Path, *, resume: b
     return RunOutcome(out_dir, positions, state["texture"].numpy(), params, timings)
 
 
+def held_vertices(anchor_log10, h: float) -> dict:
+    """The soft anchors in params.json: the vertices they hold (w h² > 1, the spring outweighs the inertia
+    within a substep) and each anchor's stiffness per unit mass."""
+    w = 10.0 ** np.asarray(anchor_log10, dtype=np.float64)
+    return {"held_vertices": [int(i) for i in np.flatnonzero(w * h * h > 1.0)],
+            "anchor_stiffness": [float(v) for v in w]}
+
+
 def shape_params_summary(p: dict, cfg: SaftConfig, scene: Scene) -> dict:
     lY, lB, lS = (float(p[k]) for k in ("log10_Y", "log10_B", "log10_S"))
     return {
         "Y": 10 ** lY, "B": 10 ** lB, "S": 10 ** lS, "log10_Y": lY, "log10_B": lB, "log10_S": lS,
         "constant_acceleration": [float(v) for v in p["const_accel"]],
         **({"light": [float(v) for v in p["light"]]} if "light" in p else {}),
+        **(held_vertices(p["anchor_log10"], scene.frame_dt / cfg.physics.substeps) if "anchor_log10" in p else {}),
         "damping": cfg.physics.damping, "density": cfg.physics.density, "frame_dt": scene.frame_dt,
         "substeps": cfg.physics.substeps,
         "units": {"Y": "N/m", "B": "N·m/rad²", "S": "N·m/rad²", "constant_acceleration": "m/s²",

@@ -2,23 +2,25 @@
 
 Each epoch simulates from the template through the frames in use and renders them with the fixed texture:
 
-    L = λ_im·L_im + λ_sil·L_sil + λ_E·R_E + λ_F·R_F + λ_track·L_track
+    L = λ_im·L_im + λ_sil·L_sil + λ_E·R_E + λ_F·R_F + λ_track·L_track + λ_A·R_A
 
 L_im, L_sil: mean squared RGB / mask errors averaged over the frames in use; R_E: the deformation energy of
 the simulated frames with the stiffnesses detached (it regularizes the geometry, not the material); R_F:
 the size of the external accelerations beyond the constant one, their component along the viewing
 directions of the CURRENT simulated vertices (or the template's) weighted by shape.force_along_weight (or
 force_along_weight_pinned when vertices are pinned; the paper: 0); L_track: the distance of the projected
-vertices to their optical-flow point tracks (saft.reconstruct.tracks; not in the paper).
+vertices to their optical-flow point tracks (saft.reconstruct.tracks; not in the paper); R_A: the held share
+of the soft anchors (ShapeSimulator.held_share; not in the paper).
 The optimized parameters are log10 Y, B, S (clamped to their ranges), a constant acceleration (gravity +
 mean wind), per-vertex per-frame accelerations and a per-frame affine acceleration field over the
 template (saft.reconstruct.force_field; not in the paper) and, with shape.lr_light > 0, the light vector of
-the relative shading (saft.render.shading; not in the paper: the renderer is then lit relative to frame 0),
-each with its own clipped Adam.
+the relative shading (saft.render.shading; not in the paper: the renderer is then lit relative to frame 0)
+and, with soft anchors (shape.anchors), log10 of each vertex's anchor stiffness, each with its own clipped Adam.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 
@@ -52,6 +54,7 @@ class ShapeParams:
     vertex_accel: torch.Tensor     # (N-1, V, 3): during the substeps from frame k to k+1
     field_accel: torch.Tensor | None = None   # (N-1, 4, 3): the affine field's coefficients (force_field.py)
     light: torch.Tensor | None = None         # (3,): first-order light vector of the relative shading (render.shading)
+    anchor_log10: torch.Tensor | None = None  # (V,): log10 of the soft anchors' stiffness per unit mass (s^-2)
 
     def tensors(self) -> dict[str, torch.Tensor]:
         t = {"log10_Y": self.log10_Y, "log10_B": self.log10_B, "log10_S": self.log10_S,
@@ -60,6 +63,8 @@ class ShapeParams:
             t["field_accel"] = self.field_accel
         if self.light is not None:
             t["light"] = self.light
+        if self.anchor_log10 is not None:
+            t["anchor_log10"] = self.anchor_log10
         return t
 
     def accelerations(self, basis: torch.Tensor, lo: int, hi: int) -> torch.Tensor:
@@ -119,6 +124,8 @@ def _make_optimizer(params: ShapeParams, cfg: ShapeConfig) -> ClippedAdam:
         specs.append(ParamSpec("field_accel", params.field_accel, cfg.lr_field_accel))
     if params.light is not None:
         specs.append(ParamSpec("light", params.light, cfg.lr_light))
+    if params.anchor_log10 is not None:
+        specs.append(ParamSpec("anchor_log10", params.anchor_log10, cfg.lr_anchor))
     if cfg.optimize_stiffness:
         specs += [ParamSpec(n, getattr(params, n), cfg.lr_stiffness) for n in ("log10_Y", "log10_B", "log10_S")]
     return ClippedAdam(specs, clip=cfg.grad_clip, quantile=cfg.autoclip_quantile, history=cfg.autoclip_history,
@@ -130,15 +137,24 @@ def _make_guard(cfg: ShapeConfig) -> StepGuard:
                      recover_after=cfg.backtrack_recover_epochs)
 
 
-def initial_const_accel(gravity: np.ndarray, pinned, cfg: ShapeConfig) -> np.ndarray:
+def anchors_on(pinned, cfg: ShapeConfig, gravity_stated: bool = True) -> bool:
+    """Whether the run learns soft anchors: shape.anchors; "auto" = when the scene pins nothing and states
+    its gravity (the anchored cloth hangs under gravity: a guessed direction is no base for it)."""
+    if cfg.anchors == "auto":
+        return (pinned is None or len(pinned) == 0) and gravity_stated
+    return cfg.anchors == "on"
+
+
+def initial_const_accel(gravity: np.ndarray, pinned, cfg: ShapeConfig, gravity_stated: bool = True) -> np.ndarray:
     mode = cfg.const_accel_init
     if mode == "auto":
-        mode = "gravity" if pinned is not None and len(pinned) > 0 else "zero"
+        held = (pinned is not None and len(pinned) > 0) or anchors_on(pinned, cfg, gravity_stated)
+        mode = "gravity" if held else "zero"
     return np.asarray(gravity, dtype=np.float64) if mode == "gravity" else np.zeros(3)
 
 
 def new_shape_state(num_frames: int, num_vertices: int, gravity: np.ndarray, phys: PhysicsConfig,
-                    cfg: ShapeConfig, device, dtype=torch.float64) -> ShapeState:
+                    cfg: ShapeConfig, device, dtype=torch.float64, anchors: bool = False) -> ShapeState:
     """Fresh parameters; `gravity` is the initial constant acceleration (see initial_const_accel)."""
     def scalar(v):
         return torch.tensor(float(v), dtype=dtype, device=device, requires_grad=cfg.optimize_stiffness)
@@ -151,12 +167,14 @@ def new_shape_state(num_frames: int, num_vertices: int, gravity: np.ndarray, phy
         field_accel=(torch.zeros(max(num_frames - 1, 0), 4, 3, dtype=dtype, device=device, requires_grad=True)
                      if cfg.lr_field_accel > 0 else None),
         light=torch.zeros(3, dtype=dtype, device=device, requires_grad=True) if cfg.lr_light > 0 else None,
+        anchor_log10=(torch.full((num_vertices,), float(cfg.anchor_log10_init), dtype=dtype, device=device,
+                                 requires_grad=True) if anchors else None),
     )
     return ShapeState(params, _make_optimizer(params, cfg), _make_guard(cfg))
 
 
 def restore_shape_state(saved: dict, cfg: ShapeConfig, device) -> ShapeState:
-    always_learned = ("const_accel", "vertex_accel", "field_accel", "light")
+    always_learned = ("const_accel", "vertex_accel", "field_accel", "light", "anchor_log10")
     p = {k: v.to(device).requires_grad_(k in always_learned or cfg.optimize_stiffness) for k, v in saved["params"].items()}
     params = ShapeParams(**p)
     state = ShapeState(params, _make_optimizer(params, cfg), _make_guard(cfg), saved["epoch"],
@@ -188,7 +206,7 @@ class ShapeSimulator:
         accel = params.accelerations(self.field_basis, 0, num_frames - 1)
         return rollout(self.topology, self.template, None, self._physics(params, accel), num_frames=num_frames,
                        substeps=self.phys.substeps, frame_dt=self.frame_dt, pinned=self.pinned,
-                       hessian=self.phys.hessian)
+                       hessian=self.phys.hessian, anchor_positions=self.template)
 
     def simulate_from(self, params: ShapeParams, start: int, num_frames: int, x0: torch.Tensor | None = None,
                       v0: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -204,15 +222,28 @@ class ShapeSimulator:
         v0 = torch.zeros_like(x0) if v0 is None else v0
         a_sub = params.accelerations(self.field_basis, start, num_frames - 1).repeat_interleave(S, dim=0)
         pos = rollout(self.topology, x0, v0, self._physics(params, a_sub), num_frames=(n - 1) * S + 1, substeps=1,
-                      frame_dt=self.frame_dt / S, pinned=self.pinned, hessian=self.phys.hessian)
+                      frame_dt=self.frame_dt / S, pinned=self.pinned, hessian=self.phys.hessian,
+                      anchor_positions=self.template)
         x = pos[::S]
         v = torch.cat([v0[None], (pos[S::S] - pos[S - 1::S]) / (self.frame_dt / S)], dim=0)
         return x, v
 
     def _physics(self, params: ShapeParams, a_vert: torch.Tensor):
         damping = torch.tensor(self.phys.damping, dtype=self.template.dtype, device=self.template.device)
+        anchor = None if params.anchor_log10 is None else 10.0 ** params.anchor_log10
         return PhysicsParams(log10_Y=params.log10_Y, log10_B=params.log10_B, log10_S=params.log10_S,
-                             damping=damping, a_const=params.const_accel, a_vert=a_vert)
+                             damping=damping, a_const=params.const_accel, a_vert=a_vert, anchor=anchor)
+
+    def held_share(self, params: ShapeParams, floor: float) -> torch.Tensor:
+        """R_A: the mean over vertices of how far each soft anchor holds its vertex, linear in log10 w from
+        `floor` (0) to w h² = 10 (1, held) and flat above: a held vertex is then free to be held harder
+        (a saturating share such as w h² / (1 + w h²) still has a small gradient there, which Adam scales
+        up to full steps and which softened every anchor until the data noticed). 0 when anchors are off."""
+        if params.anchor_log10 is None:
+            return params.const_accel.new_zeros(())
+        h = self.frame_dt / self.phys.substeps
+        held_at = math.log10(10.0 / (h * h))
+        return ((params.anchor_log10 - floor) / max(held_at - floor, 1e-6)).clamp(0.0, 1.0).mean()
 
     def energy(self, positions: torch.Tensor, params: ShapeParams) -> torch.Tensor:
         """Deformation energy of each frame (F,), stiffnesses detached (for R_E)."""
@@ -326,20 +357,21 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
         track = track_loss(positions, tracks, ctx.camera, cfg.track_huber, first_frame=start, hidden=hidden)
     else:
         track = torch.zeros((), dtype=positions.dtype, device=positions.device)
-    reg = cfg.lambda_energy * energy + cfg.lambda_force * force + cfg.lambda_track * track
+    held = sim.held_share(params, cfg.anchor_log10_range[0])
+    reg = cfg.lambda_energy * energy + cfg.lambda_force * force + cfg.lambda_track * track + cfg.lambda_anchor * held
     grad_pos = pos_leaf.grad.to(positions.dtype) if pos_leaf.grad is not None else torch.zeros_like(positions)
     torch.autograd.backward([positions, reg], [grad_pos, torch.ones_like(reg)])
 
     total = (cfg.lambda_image * sums["image"] + cfg.lambda_sil * sums["silhouette"]
              + cfg.lambda_energy * float(energy.detach()) + cfg.lambda_force * float(force.detach())
-             + cfg.lambda_track * float(track.detach()))
+             + cfg.lambda_track * float(track.detach()) + cfg.lambda_anchor * float(held.detach()))
     if cfg.normalize_loss and total > 0:
         # Dividing the loss by its detached value scales every gradient by 1/L (scale-free steps).
         for t in params.tensors().values():
             if t.grad is not None:
                 t.grad.div_(total)
     return {"loss": total, "energy": float(energy.detach()), "force": float(force.detach()),
-            "track": float(track.detach()), **sums}
+            "track": float(track.detach()), "held": float(held.detach()), **sums}
 
 
 def lr_factor(epoch: int, first_final: float, cfg: ShapeConfig) -> float:
@@ -366,7 +398,8 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
     """Optimize through the frame schedule (continuing from state.epoch); returns all frames' positions."""
     n_frames = ctx.target_rgb.shape[0]
     sched = FrameSchedule.restore(n_frames, cfg, state.schedule, state.epoch)
-    ranges = {"log10_Y": phys.log10_Y_range, "log10_B": phys.log10_B_range, "log10_S": phys.log10_S_range}
+    ranges = {"log10_Y": phys.log10_Y_range, "log10_B": phys.log10_B_range, "log10_S": phys.log10_S_range,
+              "anchor_log10": cfg.anchor_log10_range}
     tracks = shape_tracks(ctx, cfg, texture)
     if cfg.window > 0 and state.states is None:
         zeros = ctx.template_positions.new_zeros((n_frames,) + tuple(ctx.template_positions.shape))
@@ -399,7 +432,8 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
             state.states.stepped(start)
         with torch.no_grad():
             for name, (lo, hi) in ranges.items():
-                getattr(params, name).clamp_(lo, hi)
+                if getattr(params, name) is not None:
+                    getattr(params, name).clamp_(lo, hi)
         state.epoch += 1
         sched.epoch_done(terms["loss"])
         state.schedule = sched.state_dict()

@@ -8,7 +8,8 @@ Conventions of that layout (checked numerically on R1, see ../shared/data/phi_sf
   image_size = [height, width];
 - lower_left_corners / upper_right_corners are (row, column) with rows counted from the BOTTOM;
 - ground-truth point clouds are stored in the OpenCV camera frame (x, y negated w.r.t. the template);
-- no gravity is given: 9.81 m/s² opposite to the camera's up vector.
+- no gravity is given (Scene.gravity None): the reconstruction assumes 9.81 m/s² opposite to the camera's up
+  vector (Scene.gravity_or_default).
 """
 
 from __future__ import annotations
@@ -137,7 +138,7 @@ def read_phi_sft_scene(json_path: str | Path, root: str | Path | None = None) ->
     scene = Scene(
         name=str(data.get("scene", json_path.stem)), template=template, camera=camera, frames=frames,
         texture=texture, pinned=None, frame_dt=DEFAULT_FRAME_DT,
-        gravity=-STANDARD_GRAVITY * camera.up, crop=crop_from_phi_sft(json_path, data, camera.height),
+        gravity=None, crop=crop_from_phi_sft(json_path, data, camera.height),
         source=json_path, ground_truth_dir=gt_dir, ground_truth_frame="camera",
     )
     scene.validate()
