@@ -67,8 +67,10 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "appearance.texel_size": (4, 8192, True),
 }
 
-# log10 stiffness ranges (lo, hi) and the initial value each must lie in.
-STIFFNESS = ("Y", "B", "S")
+# Ranges [lo, hi] given in the config, each with the initial value that must lie in it: the log10
+# stiffnesses and the soft anchors' log10 stiffness.
+INIT_IN_RANGE = tuple((f"physics.log10_{n}_init", f"physics.log10_{n}_range") for n in ("Y", "B", "S")) + (
+    ("shape.anchor_log10_init", "shape.anchor_log10_range"),)
 
 
 def _get(cfg, key: str):
@@ -90,22 +92,12 @@ def check_config_ranges(cfg, where: str = "config") -> None:
         if not low_ok or value > hi:   # NaN fails low_ok
             bracket = "[" if lo_inclusive else "("
             raise SaftInputError(where, f"{key} must lie in {bracket}{lo:g}, {hi:g}], got {value!r}")
-    for name in STIFFNESS:
-        lo, hi = _get(cfg, f"physics.log10_{name}_range") or (None, None)
-        init = _get(cfg, f"physics.log10_{name}_init")
+    for init_key, range_key in INIT_IN_RANGE:
+        lo, hi = _get(cfg, range_key) or (None, None)
+        init = _get(cfg, init_key)
         if lo is None or init is None:
             continue
         if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
-            raise SaftInputError(where, f"physics.log10_{name}_range must be [low, high] with low <= high, "
-                                        f"got [{lo!r}, {hi!r}]")
+            raise SaftInputError(where, f"{range_key} must be [low, high] with low <= high, got [{lo!r}, {hi!r}]")
         if not lo <= init <= hi:
-            raise SaftInputError(where, f"physics.log10_{name}_init = {init!r} lies outside "
-                                        f"physics.log10_{name}_range [{lo:g}, {hi:g}]")
-    lo, hi = _get(cfg, "shape.anchor_log10_range") or (0.0, 0.0)
-    init = _get(cfg, "shape.anchor_log10_init")
-    if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
-        raise SaftInputError(where, "shape.anchor_log10_range must be [low, high] with low <= high, "
-                                    f"got [{lo!r}, {hi!r}]")
-    if init is not None and not lo <= init <= hi:
-        raise SaftInputError(where, f"shape.anchor_log10_init = {init!r} lies outside shape.anchor_log10_range "
-                                    f"[{lo:g}, {hi:g}]")
+            raise SaftInputError(where, f"{init_key} = {init!r} lies outside {range_key} [{lo:g}, {hi:g}]")
