@@ -26,13 +26,21 @@ if [ -n "$dev" ] && command -v npm >/dev/null 2>&1 && [ ! -d "$(npm root -g 2>/d
 fi
 
 PIP="python3 -m pip"
+gpu=""
+command -v nvidia-smi >/dev/null 2>&1 && nvidia-smi -L >/dev/null 2>&1 && gpu="yes"
+[ -n "$gpu" ] && extras="${extras:+$extras,}cuda"          # cuda: nvdiffrast (diffrp-nvdiffrast)
 if ! python3 -c "import torch" 2>/dev/null; then
-    if command -v nvidia-smi >/dev/null 2>&1 && nvidia-smi -L >/dev/null 2>&1; then
+    if [ -n "$gpu" ]; then
         $PIP install -q "torch>=2.2"
-        extras="${extras:+$extras,}cuda"
     else
         # CPU build. Elsewhere than here, set PIP_INDEX_URL to PyTorch's CPU wheel index for this step.
         $PIP install -q "torch==2.13.0"
     fi
 fi
 $PIP install -q -e ".${extras:+[$extras]}"
+if [ -n "$gpu" ]; then
+    # nvdiffrast compiles its CUDA plugin on first use (about 30 s): do it now, and say whether it works.
+    python3 -c "from saft.render.nvdiffrast_backend import nvdiffrast_status as s; ok, why = s(); \
+print('saft install: nvdiffrast ' + ('works' if ok else 'does not work here (' + why + '); saft renders with PyTorch'))" \
+        || echo "saft install: could not check nvdiffrast" >&2
+fi

@@ -11,7 +11,8 @@ The result of one run moves with numerical noise, so settings are compared by th
 of `--repeats K` runs under perturbations that should not matter, in turn: (0) as given, (1) the
 template moved by seeded Gaussian noise of 1e-9 m, (2) two torch threads instead of one, (3+) 1e-9 m
 noise with other seeds. Prints one line per run, then per ablation the median, min and max of the mean
-CD2 and, last, `r1_cd2_1e-4m2=<median mean CD2>` of the first ablation.
+CD2 and, last, `r1_cd2_1e-4m2=<median mean CD2>` and `r1_wall_s=<median wall seconds>` of the first
+ablation.
 """
 
 from __future__ import annotations
@@ -95,15 +96,17 @@ def main() -> None:
     args = p.parse_args()
     if not R1.is_file():
         raise SystemExit(f"R1 not found at {R1} (the shared/ folder beside the repository)")
-    medians = []
+    medians, walls = [], []
     for a in args.ablation:
         rows = [run(a, args.out / a / f"run{k}", args.device, args.set, args.frames, k) for k in range(args.first_repeat, args.first_repeat + args.repeats)]
         cd2 = [r["cd2_1e-4m2"] for r in rows]
         medians.append(statistics.median(cd2))
+        walls += [r["wall_s"] for r in rows] if a == args.ablation[0] else []
         print(f"{a:16s} median CD2 {medians[-1]:.3f}  min {min(cd2):.3f}  max {max(cd2):.3f}  "
               f"max/min {max(cd2) / min(cd2):.2f}  median last frame {statistics.median(r['cd2_last'] for r in rows):.3f}",
               flush=True)
     print(f"r1_cd2_1e-4m2={medians[0]:.4f}")
+    print(f"r1_wall_s={statistics.median(walls):.1f}")
 
 
 if __name__ == "__main__":

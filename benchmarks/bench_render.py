@@ -5,7 +5,8 @@ Gradients flow to the vertex positions and to the texture. Resolutions: 700×800
 CPU time (time.process_time: the honest number on a shared, loaded machine, where wall time also counts
 waiting for a core). Prints a table of medians of --runs timed steps after warm-up; the last line is
 machine-readable: render_fwd_bwd_ms_350x400=<ms>, the median WALL time at 350×400 for the thread count
-that is fastest there.
+that is fastest there, after render_fwd_bwd_ms_700x800_<backend>=<ms> at that thread count. On CUDA the
+step ends with torch.cuda.synchronize, so wall time is the GPU's time; use --threads 1 there.
 
     python benchmarks/bench_render.py [--runs 15] [--threads 1,2] [--backend torch] [--device cpu] [--profile]
 """
@@ -95,14 +96,13 @@ def main(argv=None) -> int:
     print(f"backend={R.name} device={device} triangles={len(mesh.triangles)} texture={tuple(tex.shape)} "
           f"runs={args.runs} (medians; CPU = process time of all threads)")
     print(f"{'threads':>7}  {'resolution':>10}  {'wall ms':>8}  {'CPU ms':>8}")
-    wall_half = {}
+    wall_half, wall_full = {}, {}
     for n in threads:
         torch.set_num_threads(n)
         for cam in (full, half):
             wall, cpu = bench(cam, mesh, tex, R, device, args.runs)
             print(f"{n:>7}  {f'{cam.height}x{cam.width}':>10}  {wall:8.1f}  {cpu:8.1f}", flush=True)
-            if cam is half:
-                wall_half[n] = wall
+            (wall_half if cam is half else wall_full)[n] = wall
     best = min(wall_half, key=wall_half.get)
     torch.set_num_threads(best)
     if args.profile:
@@ -111,6 +111,7 @@ def main(argv=None) -> int:
             bench(half, mesh, tex, R, device, 5)
         print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=20))
     print(f"best thread count at 350x400: {best}")
+    print(f"render_fwd_bwd_ms_700x800_{R.name}={wall_full[best]:.2f}")
     print(f"render_fwd_bwd_ms_350x400={wall_half[best]:.1f}")
     return 0
 

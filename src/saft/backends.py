@@ -17,7 +17,7 @@ import torch
 
 from saft.appearance.mitsuba_backend import ensure_backend
 from saft.errors import BackendUnavailableError
-from saft.render.nvdiffrast_backend import nvdiffrast_available
+from saft.render.nvdiffrast_backend import nvdiffrast_status
 
 
 def _version(dist: str) -> str | None:
@@ -45,8 +45,9 @@ def _nvdiffrast() -> str:
     version = _version("diffrp-nvdiffrast") or _version("nvdiffrast")
     if importlib.util.find_spec("nvdiffrast") is None:
         return "not installed (CUDA only: pip install 'saft[cuda]'); the PyTorch rasterizer is used"
-    return f"{version or 'installed'}; " + ("used on CUDA" if nvdiffrast_available() else
-                                            "not usable without CUDA; the PyTorch rasterizer is used")
+    ok, why = nvdiffrast_status()
+    return f"{version or 'installed'}; " + ("works: used on CUDA" if ok else
+                                            f"not usable here ({why}); the PyTorch rasterizer is used")
 
 
 def _cholmod() -> str:

@@ -25,6 +25,7 @@ from saft import __version__
 from saft.backends import backend_lines
 from saft.batch import parse_grid, plan_tasks, run_batch
 from saft.demo import run_demo
+from saft.device import plan_devices
 from saft.errors import BackendUnavailableError, SaftInputError, SimulationError
 from saft.evaluate import (evaluate_result_dir, format_metrics_table, ground_truth_files, ground_truth_spec_for,
                            ground_truth_spec_from_path)
@@ -169,6 +170,9 @@ def cmd_info(args: argparse.Namespace) -> int:
     print(f"torch threads: {torch.get_num_threads()}  CUDA available: {torch.cuda.is_available()}")
     print("backends:")
     for line in backend_lines():
+        print(f"  {line}")
+    print("--device auto puts each part of a run here:")
+    for line in plan_devices("auto").lines():
         print(f"  {line}")
     return 0
 

@@ -1,21 +1,109 @@
-"""Where torch runs: the device a run asks for, and how many CPU threads torch uses."""
+"""Where torch runs: the device a run asks for, per part of the run, and how many CPU threads torch uses.
+
+A run has three parts that may go to different devices (``plan_devices``):
+
+    physics      the cloth simulation of the shape phase (float64; numba on the CPU, torch on CUDA)
+    render       the differentiable rasterizer of the texture and shape phases (nvdiffrast or torch)
+    appearance   Mitsuba's differentiable ray tracing of phase 3 (llvm_ad_rgb or cuda_ad_rgb)
+
+``--device cpu`` and ``--device cuda`` put every part there. ``--device auto`` puts each part where it was
+measured fastest (BENCHMARKS.md, "GPU"), and the plan states why in the log and in ``saft info``.
+"""
 
 from __future__ import annotations
 
+import functools
 import os
+from dataclasses import dataclass, field
 
 import torch
 
-from saft.errors import SaftInputError
+from saft.appearance.mitsuba_backend import ensure_backend
+from saft.errors import BackendUnavailableError, SaftInputError
+from saft.render.nvdiffrast_backend import nvdiffrast_status
+
+# The CUDA physics path that `auto` would use is slower than the CPU's numba path on R1's template
+# (measured on an H200, BENCHMARKS.md "GPU": Jacobi CG 2.37 s for 10 frames against 1.17 s for 50 on
+# the CPU), so `auto` keeps the physics on the CPU until a CUDA solver is measured faster.
+PHYSICS_ON_CUDA_WINS = False
 
 
 def resolve_device(name: str) -> torch.device:
-    """'auto' (CUDA when torch sees it, else CPU), 'cpu' or 'cuda'; 'cuda' without a CUDA device is an input error."""
+    """'auto' (CUDA when torch sees it, else CPU), 'cpu' or 'cuda'; 'cuda' without a CUDA device is an input error.
+    The device of the renders; plan_devices says where each part of a run goes."""
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if name == "cuda" and not torch.cuda.is_available():
         raise SaftInputError("--device", "cuda was asked for but torch sees no CUDA device")
     return torch.device(name)
+
+
+@dataclass(frozen=True)
+class DevicePlan:
+    """The device of each part of a run, and one line per part saying why."""
+    physics: torch.device
+    render: torch.device
+    appearance: torch.device
+    why: dict = field(default_factory=dict, compare=False)
+
+    def lines(self) -> list[str]:
+        return [f"{part:<10} {getattr(self, part).type:<4}  {self.why.get(part, '')}"
+                for part in ("physics", "render", "appearance")]
+
+
+def plan_devices(name: str, *, appearance: bool = True, nvdiffrast_ok: bool | None = None,
+                 mitsuba_cuda_ok: bool | None = None) -> DevicePlan:
+    """Per-part devices for run.device = `name` ('auto', 'cpu' or 'cuda').
+
+    appearance: whether the run has an appearance phase (else Mitsuba is not probed and the part stays on
+    the CPU). nvdiffrast_ok / mitsuba_cuda_ok: whether those backends work on this machine's GPU; None =
+    probe them (only when a CUDA device is there: nvdiffrast rasterizes a triangle, Mitsuba renders in a
+    subprocess).
+    """
+    render = resolve_device(name)
+    cpu = torch.device("cpu")
+    if render.type == "cpu":
+        why = "asked for (--device cpu)" if name == "cpu" else "no CUDA device"
+        return DevicePlan(cpu, cpu, cpu, {p: why for p in ("physics", "render", "appearance")})
+    if nvdiffrast_ok is None:
+        nvdiffrast_ok = nvdiffrast_status()[0]
+    if mitsuba_cuda_ok is None:
+        mitsuba_cuda_ok = appearance and _mitsuba_cuda_ok()
+    raster = "nvdiffrast" if nvdiffrast_ok else "the PyTorch rasterizer (nvdiffrast not usable)"
+    if name == "cuda":
+        return DevicePlan(render, render, render, {
+            "physics": "asked for (--device cuda); torch solver",
+            "render": f"asked for (--device cuda); {raster}",
+            "appearance": "asked for (--device cuda); Mitsuba cuda_ad_rgb"
+                          + ("" if mitsuba_cuda_ok else " (not usable here: the phase will say why)")})
+    physics = render if PHYSICS_ON_CUDA_WINS else cpu
+    why = {
+        "physics": ("CUDA: its solver was measured faster than the CPU's" if PHYSICS_ON_CUDA_WINS else
+                    "CPU (numba kernels, ILU-preconditioned CG): measured faster than the CUDA solver"),
+        "render": f"CUDA, {raster}: measured faster than the CPU rasterizer",
+        "appearance": ("CUDA, Mitsuba cuda_ad_rgb" if mitsuba_cuda_ok else
+                       "CPU, Mitsuba llvm_ad_rgb: Mitsuba's CUDA variant is not usable here" if appearance else
+                       "no appearance phase in this run"),
+    }
+    return DevicePlan(physics, render, render if mitsuba_cuda_ok else cpu, why)
+
+
+def appearance_device(name: str) -> torch.device:
+    """The appearance phase's device for run.device = `name` (what plan_devices says, without the rasterizer
+    probe): CUDA when asked for, or with 'auto' when Mitsuba's CUDA variant works here; else the CPU."""
+    device = resolve_device(name)
+    if device.type == "cuda" and name == "auto" and not _mitsuba_cuda_ok():
+        return torch.device("cpu")
+    return device
+
+
+@functools.cache
+def _mitsuba_cuda_ok() -> bool:
+    try:
+        ensure_backend("cuda")
+    except (BackendUnavailableError, ImportError):
+        return False
+    return True
 
 
 def cpu_threads(requested: int) -> int:
@@ -28,4 +116,4 @@ def cpu_threads(requested: int) -> int:
     return 1 if cores <= 2 else min(8, cores // 2)
 
 
-__all__ = ["cpu_threads", "resolve_device"]
+__all__ = ["DevicePlan", "appearance_device", "PHYSICS_ON_CUDA_WINS", "cpu_threads", "plan_devices", "resolve_device"]

@@ -1,4 +1,5 @@
-"""nvdiffrast vs the PyTorch backend on the same scene (needs CUDA and nvdiffrast; skipped otherwise).
+"""nvdiffrast vs the PyTorch backend on the same scene. Skipped without CUDA or without the nvdiffrast package;
+where both are there, nvdiffrast must work (a broken plugin build or import fails here, loudly).
 
 Stated tolerance: identical coverage except on pixels whose centre lies within 1e-3 px of an edge;
 barycentrics and z/w within 1e-4; rgb within 0.02 (mean 0.002) — the mip level formulas differ slightly —
@@ -8,6 +9,7 @@ cosine similarity ≥ 0.95.
 
 from __future__ import annotations
 
+import importlib.util
 import sys
 from pathlib import Path
 
@@ -15,13 +17,21 @@ import numpy as np
 import pytest
 import torch
 
-from saft.render import get_rasterizer, nvdiffrast_available, render_cloth
+from saft.render import get_rasterizer, render_cloth
+from saft.render.nvdiffrast_backend import nvdiffrast_status
 
 sys.path.insert(0, str(Path(__file__).parent))
 from _render_helpers import grid, pinhole, smooth_texture  # noqa: E402
 
 pytestmark = [pytest.mark.cuda,
-              pytest.mark.skipif(not nvdiffrast_available(), reason="needs CUDA and nvdiffrast (saft[cuda])")]
+              pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device"),
+              pytest.mark.skipif(importlib.util.find_spec("nvdiffrast") is None,
+                                 reason="needs nvdiffrast (saft[cuda]: the diffrp-nvdiffrast package)")]
+
+
+def test_nvdiffrast_rasterizes_on_this_gpu():
+    ok, why = nvdiffrast_status()
+    assert ok, f"nvdiffrast is installed but does not work: {why}"
 
 
 def test_nvdiffrast_and_torch_backends_agree():

@@ -39,7 +39,7 @@ def run_appearance_phase(ctx: PhaseContext, cfg: AppearanceConfig, positions: np
         ctx.epoch_done("appearance", epochs_done)   # Ctrl-C: the fit checkpoints this epoch on the way out
 
     result = fit_appearance(positions, triangles, uvs, ctx.camera, ctx.target_rgb.cpu().numpy(),
-                            ctx.target_mask.cpu().numpy(), config=cfg, device=ctx.device, progress=on_progress,
+                            ctx.target_mask.cpu().numpy(), config=cfg, device=ctx.devices.appearance, progress=on_progress,
                             resume_state=resume_state,
                             checkpoint=lambda app_state: ctx.checkpoint("appearance", app_state))
     ctx.progress.end_phase()

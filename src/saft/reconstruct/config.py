@@ -13,7 +13,7 @@ from typing import Literal
 
 from saft.appearance.config import AppearanceConfig, cpu_profile
 from saft.config_io import from_dict, load_toml, merge_overrides, to_dict
-from saft.device import resolve_device
+from saft.device import appearance_device
 from saft.physics import (DEFAULT_DAMPING, DEFAULT_DENSITY, DEFAULT_LOG10_B, DEFAULT_LOG10_S, DEFAULT_LOG10_Y,
                           DEFAULT_SUBSTEPS, LOG10_LIMITS)
 from saft.reconstruct.config_checks import check_config_ranges
@@ -222,7 +222,7 @@ def load_saft_config(path: str | Path | None = None, overrides: list[str] | None
         where = f"{path} + --set" if path else "--set"
     cfg = from_dict(SaftConfig, data, where)
     if cfg.appearance.profile == "auto":
-        on_cpu = resolve_device(cfg.run.device).type == "cpu"
+        on_cpu = appearance_device(cfg.run.device).type == "cpu"
         base = cpu_profile(AppearanceConfig()) if on_cpu else AppearanceConfig(profile="paper")
         user = {k: v for k, v in data.get("appearance", {}).items() if k != "profile"}
         cfg.appearance = from_dict(AppearanceConfig, {**to_dict(base), **user}, where, "appearance.")

@@ -14,6 +14,7 @@ from typing import Callable
 import numpy as np
 import torch
 
+from saft.device import DevicePlan
 from saft.reconstruct.checkpoint import CheckpointClock, InterruptGuard, Interrupted, save_checkpoint
 from saft.reconstruct.progress import EpochLog, Progress
 from saft.render import render_cloth
@@ -23,9 +24,10 @@ from saft.scene.camera import Camera
 
 @dataclass
 class PhaseContext:
-    device: torch.device
+    device: torch.device               # the renders' device (devices.render)
+    devices: DevicePlan                # where each part of the run goes (saft.device.plan_devices)
     camera: Camera                     # the working camera (crop and scale applied)
-    template_positions: torch.Tensor   # (V, 3) float64 on device
+    template_positions: torch.Tensor   # (V, 3) float64 on device (the simulator keeps its copy on devices.physics)
     triangles: torch.Tensor            # (T, 3) int32 on device
     uvs: torch.Tensor                  # (V, 2) float32 on device
     target_rgb: torch.Tensor           # (N, H, W, 3) float32 sRGB on device

@@ -73,8 +73,9 @@ def measure_run(ctx, sim, cfg: SaftConfig, num_frames: int, gravity) -> RunEstim
     t_render, b_render = _timed(lambda: ctx.render(verts, texture).rgb.square().mean())
 
     # One substep of a cloth pulled by gravity (a cloth at rest would make the solver's work trivial),
-    # with a fresh factorisation: an upper estimate of a substep of the run.
-    dtype, V = ctx.template_positions.dtype, ctx.template_positions.shape[0]
+    # with a fresh factorisation: an upper estimate of a substep of the run. On the physics' device.
+    device = sim.template.device
+    dtype, V = sim.template.dtype, sim.template.shape[0]
     phys = cfg.physics
 
     def scalar(v):
@@ -85,7 +86,7 @@ def measure_run(ctx, sim, cfg: SaftConfig, num_frames: int, gravity) -> RunEstim
                            a_const=torch.as_tensor(gravity, dtype=dtype, device=device),
                            a_vert=torch.zeros(1, V, 3, dtype=dtype, device=device, requires_grad=True))
     def substep():
-        return rollout(sim.topology, ctx.template_positions, None, params, num_frames=2, substeps=1,
+        return rollout(sim.topology, sim.template, None, params, num_frames=2, substeps=1,
                        frame_dt=sim.frame_dt / phys.substeps, pinned=sim.pinned, hessian=phys.hessian)[1].square().sum()
 
     # untimed first: the CPU kernels are compiled (numba) or loaded from their cache on first use, a
@@ -99,7 +100,7 @@ def measure_run(ctx, sim, cfg: SaftConfig, num_frames: int, gravity) -> RunEstim
     seconds = texture_epochs * t_render + sum(f * t_render + (f - 1) * t_step for f in schedule)
     seconds += num_frames * t_render   # the final renders
     targets = ctx.target_rgb.numel() * ctx.target_rgb.element_size() + ctx.target_mask.numel() * 4
-    peak = targets + (num_frames - 1) * b_step + min(num_frames, render_chunk(device)) * b_render
+    peak = targets + (num_frames - 1) * b_step + min(num_frames, render_chunk(ctx.device)) * b_render
     return RunEstimate(seconds, int(peak), t_render, t_step)
 
 
@@ -122,7 +123,7 @@ def _duration(seconds: float) -> str:
 
 def log_estimate(ctx, sim, cfg: SaftConfig, num_frames: int, gravity) -> RunEstimate:
     """Measure (with the random state untouched) and log the estimate; warnings for large runs."""
-    devices = [ctx.device] if ctx.device.type == "cuda" else []
+    devices = sorted({d for d in (ctx.devices.render, ctx.devices.physics) if d.type == "cuda"}, key=str)
     with torch.random.fork_rng(devices=devices):
         est = measure_run(ctx, sim, cfg, num_frames, gravity)
     V = int(ctx.template_positions.shape[0])

@@ -19,7 +19,7 @@ import torch
 
 from saft.appearance import profile_for_device
 from saft.config_io import to_toml
-from saft.device import cpu_threads, resolve_device
+from saft.device import cpu_threads, plan_devices
 from saft.errors import SaftInputError
 from saft.io_utils import atomic_write_json, atomic_write_text
 from saft.reconstruct.appearance_outputs import run_appearance_phase, write_appearance_renders
@@ -71,12 +71,14 @@ def _texture_phase(ctx: PhaseContext, scene: Scene, cfg: SaftConfig) -> None:
 def _shape_phase(ctx: PhaseContext, scene: Scene, cfg: SaftConfig) -> None:
     state = ctx.state
     texture = state["texture"].to(ctx.device)
-    sim = ShapeSimulator(ctx.template_positions, scene.template.quads, cfg.physics, scene.frame_dt, scene.pinned)
+    physics = ctx.devices.physics
+    sim = ShapeSimulator(ctx.template_positions.to(physics), scene.template.quads, cfg.physics, scene.frame_dt,
+                         scene.pinned)
     stated = scene.gravity is not None
-    ss = (restore_shape_state(state["shape_state"], cfg.shape, ctx.device) if "shape_state" in state
+    ss = (restore_shape_state(state["shape_state"], cfg.shape, physics) if "shape_state" in state
           else new_shape_state(scene.num_frames, scene.template.num_vertices,
                                initial_const_accel(scene.gravity_or_default(), scene.pinned, cfg.shape, stated),
-                               cfg.physics, cfg.shape, ctx.device, anchors=anchors_on(scene.pinned, cfg.shape, stated)))
+                               cfg.physics, cfg.shape, physics, anchors=anchors_on(scene.pinned, cfg.shape, stated)))
     if cfg.shape.enabled:
         positions = run_shape_phase(ctx, sim, ss, cfg.physics, cfg.shape, texture)
     else:
@@ -98,7 +100,7 @@ def _appearance_phase(ctx: PhaseContext, scene: Scene, cfg: SaftConfig) -> None:
     result = run_appearance_phase(ctx, cfg.appearance, positions, scene.template.triangles, scene.template.uvs,
                                   ctx.state.get("appearance_state"))
     write_appearance_renders(ctx.out_dir, result, positions, scene.template.triangles, scene.template.uvs,
-                             ctx.camera, ctx.target_rgb.cpu().numpy(), ctx.device)
+                             ctx.camera, ctx.target_rgb.cpu().numpy(), ctx.devices.appearance)
     ctx.state.pop("appearance_state", None)
 
 
@@ -140,9 +142,13 @@ def reconstruct(scene: Scene, cfg: SaftConfig, out_dir: str | Path, *, resume: b
     out_dir = Path(out_dir)
     check_config_ranges(cfg)
     check_out_dir(out_dir, scene, resume=resume, overwrite=overwrite)
-    device = resolve_device(cfg.run.device)
+    devices = plan_devices(cfg.run.device, appearance=cfg.appearance.enabled)
+    device = devices.render
+    for line in devices.lines():
+        log.info("device: %s", line)
     if cfg.appearance.profile == "auto":   # programmatic use; the CLI resolves it in load_saft_config
-        cfg = replace(cfg, appearance=profile_for_device(device, replace(cfg.appearance, profile="paper")))
+        cfg = replace(cfg, appearance=profile_for_device(devices.appearance,
+                                                         replace(cfg.appearance, profile="paper")))
     torch.set_num_threads(cpu_threads(cfg.run.threads))
     torch.manual_seed(cfg.run.seed)
     np.random.seed(cfg.run.seed)
@@ -166,7 +172,7 @@ def reconstruct(scene: Scene, cfg: SaftConfig, out_dir: str | Path, *, resume: b
     sim = None
     if phase_now in ("texture", "shape"):
         try:   # the template is checked by the physics before any phase runs (and the estimate uses it)
-            sim = ShapeSimulator(template, scene.template.quads, cfg.physics, scene.frame_dt, scene.pinned)
+            sim = ShapeSimulator(template.to(devices.physics), scene.template.quads, cfg.physics, scene.frame_dt, scene.pinned)
         except ValueError as exc:
             raise SaftInputError(scene.source, f"the template cannot be simulated: {exc}") from None
     create_out_dir(out_dir, overwrite=overwrite)
@@ -175,7 +181,7 @@ def reconstruct(scene: Scene, cfg: SaftConfig, out_dir: str | Path, *, resume: b
     timings: dict = dict(saved["timings"]) if saved else {}
     timings["load_frames"] = timings.get("load_frames", 0.0) + time.perf_counter() - t_load
     ctx = PhaseContext(
-        device=device, camera=camera,
+        device=device, devices=devices, camera=camera,
         template_positions=template,
         triangles=torch.as_tensor(scene.template.triangles, dtype=torch.int32, device=device),
         uvs=torch.as_tensor(scene.template.uvs, dtype=torch.float32, device=device),

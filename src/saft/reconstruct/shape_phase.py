@@ -314,19 +314,20 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
     detached state); leaves the gradients in the parameters. Returns the loss terms."""
     params = state.params
     positions = simulate_epoch(sim, state, frames, start)         # (F - start, V, 3) float64, with graph
-    pos_leaf = positions.detach().to(torch.float32).requires_grad_(True)
+    # The renders may run on another device than the physics (saft.device.plan_devices).
+    pos_leaf = positions.detach().to(device=ctx.device, dtype=torch.float32).requires_grad_(True)
     n_win = frames - start
 
     # Render in chunks: each chunk's graph is freed after its backward into pos_leaf.
     sums = {"image": 0.0, "silhouette": 0.0}
     depths = []
-    batch = render_chunk(positions.device)
-    light = params.light.to(torch.float32) if params.light is not None else None
+    batch = render_chunk(ctx.device)
+    light = params.light.to(device=ctx.device, dtype=torch.float32) if params.light is not None else None
     for lo in range(0, n_win, batch):
         hi = min(n_win, lo + batch)
         out = ctx.render(pos_leaf[lo:hi], texture, light)
         if tracks is not None and cfg.track_occlusion:
-            depths.append(out.depth.detach())
+            depths.append(out.depth.detach().to(positions.device))
         rgb, mask = out.rgb, out.mask
         if cfg.hard_coverage:
             covered = (out.rast[..., 3] > 0).to(rgb.dtype)
@@ -359,7 +360,7 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
         track = torch.zeros((), dtype=positions.dtype, device=positions.device)
     held = sim.held_share(params, cfg.anchor_log10_range[0])
     reg = cfg.lambda_energy * energy + cfg.lambda_force * force + cfg.lambda_track * track + cfg.lambda_anchor * held
-    grad_pos = pos_leaf.grad.to(positions.dtype) if pos_leaf.grad is not None else torch.zeros_like(positions)
+    grad_pos = pos_leaf.grad.to(positions) if pos_leaf.grad is not None else torch.zeros_like(positions)
     torch.autograd.backward([positions, reg], [grad_pos, torch.ones_like(reg)])
 
     total = (cfg.lambda_image * sums["image"] + cfg.lambda_sil * sums["silhouette"]
@@ -382,13 +383,14 @@ def lr_factor(epoch: int, first_final: float, cfg: ShapeConfig) -> float:
     return cfg.final_lr_fraction + (1.0 - cfg.final_lr_fraction) * 0.5 * (1.0 + np.cos(np.pi * progress))
 
 
-def shape_tracks(ctx: PhaseContext, cfg: ShapeConfig, texture: torch.Tensor) -> VertexTracks | None:
-    """Point tracks of the template's vertices through the targets, or None when the track loss is off."""
+def shape_tracks(ctx: PhaseContext, cfg: ShapeConfig, texture: torch.Tensor, template: torch.Tensor) -> VertexTracks | None:
+    """Point tracks of `template`'s vertices (on the physics device) through the targets, or None when the
+    track loss is off."""
     if cfg.lambda_track <= 0 or ctx.target_rgb.shape[0] < 2:
         return None
     with torch.no_grad():
         depth0 = ctx.render(ctx.template_positions[None].to(torch.float32), texture).depth[0]
-    return compute_vertex_tracks(ctx.target_rgb, ctx.target_mask, ctx.template_positions, ctx.camera, depth0,
+    return compute_vertex_tracks(ctx.target_rgb, ctx.target_mask, template, ctx.camera, depth0,
                                  cfg.track_fb_threshold, cfg.track_reanchor_radius, cfg.track_jump_ratio,
                                  cfg.track_jump_floor)
 
@@ -400,11 +402,11 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
     sched = FrameSchedule.restore(n_frames, cfg, state.schedule, state.epoch)
     ranges = {"log10_Y": phys.log10_Y_range, "log10_B": phys.log10_B_range, "log10_S": phys.log10_S_range,
               "anchor_log10": cfg.anchor_log10_range}
-    tracks = shape_tracks(ctx, cfg, texture)
+    tracks = shape_tracks(ctx, cfg, texture, sim.template)
     if cfg.window > 0 and state.states is None:
-        zeros = ctx.template_positions.new_zeros((n_frames,) + tuple(ctx.template_positions.shape))
+        zeros = sim.template.new_zeros((n_frames,) + tuple(sim.template.shape))
         state.states = FrameStates(zeros.clone(), zeros.clone(), 1)
-        state.states.x[0] = ctx.template_positions
+        state.states.x[0] = sim.template
     ctx.progress.start_phase("shape", sched.total_epochs, state.epoch)
     while not sched.done:
         t0 = time.perf_counter()

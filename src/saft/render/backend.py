@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import torch
 
-from saft.render.nvdiffrast_backend import NvdiffrastRasterizer, nvdiffrast_available
+from saft.errors import BackendUnavailableError
+from saft.render.nvdiffrast_backend import NvdiffrastRasterizer, nvdiffrast_available, nvdiffrast_status
 from saft.render.torch import TorchRasterizer
 
 _INSTANCES: dict = {}
@@ -14,8 +15,9 @@ def get_rasterizer(backend: str = "auto", device: str | torch.device | None = No
     """A rasterizer object with .rasterize/.interpolate/.texture/.antialias (same signatures as the
     module-level functions of saft.render).
 
-    backend: 'torch' (PyTorch, any device), 'nvdiffrast' (CUDA only; raises if not importable) or 'auto'
-    (nvdiffrast when `device` is CUDA and nvdiffrast imports, else torch). device defaults to CPU.
+    backend: 'torch' (PyTorch, any device), 'nvdiffrast' (CUDA only; BackendUnavailableError saying why
+    when it does not work here) or 'auto' (nvdiffrast when `device` is CUDA and nvdiffrast rasterizes a
+    test triangle, saft.render.nvdiffrast_backend.nvdiffrast_status; else torch). device defaults to CPU.
     Instances are cached per (backend, device): nvdiffrast contexts are expensive to create.
     """
     device = torch.device("cpu" if device is None else device)
@@ -32,11 +34,11 @@ def get_rasterizer(backend: str = "auto", device: str | torch.device | None = No
     elif backend == "nvdiffrast":
         if device.type != "cuda":
             raise ValueError("backend='nvdiffrast' needs a CUDA device")
-        try:
-            inst = NvdiffrastRasterizer(device)
-        except ImportError as exc:
-            raise ImportError("backend='nvdiffrast' needs nvdiffrast: pip install 'saft[cuda]' "
-                              "(the diffrp-nvdiffrast package)") from exc
+        ok, why = nvdiffrast_status()
+        if not ok:
+            raise BackendUnavailableError(f"render.backend = 'nvdiffrast' does not work here ({why}); install "
+                                          "it with pip install 'saft[cuda]' (diffrp-nvdiffrast) or use 'torch'")
+        inst = NvdiffrastRasterizer(device)
     else:
         raise ValueError(f"unknown rasterizer backend {backend!r} (auto, torch, nvdiffrast)")
     _INSTANCES[key] = inst

@@ -17,12 +17,62 @@ from saft.render.output import RenderOutput
 from saft.render.reference import render_cloth_primitives
 
 
-def nvdiffrast_available() -> bool:
+_STATUS: list = []   # the cached (ok, reason) of nvdiffrast_status
+
+
+def load_nvdiffrast():
+    """``nvdiffrast.torch`` with its CUDA plugin built (on first use, ~30 s) and importable.
+
+    nvdiffrast builds its plugin with torch.utils.cpp_extension.load and then imports it by name; torch
+    >= 2.11 no longer puts the extension's build folder on sys.path, so that import fails
+    (ModuleNotFoundError: nvdiffrast_plugin_..._torch2_11_0_cu130). The build folder is put on sys.path
+    first, the plugin is built or loaded, and the module is returned.
+    """
+    import sys
+
+    import nvdiffrast
+    import nvdiffrast.torch as dr
+    from nvdiffrast.torch import ops
+    from torch.utils import cpp_extension
+
+    name = ops.sanitize_name(f"nvdiffrast_plugin_{nvdiffrast.__version__}_torch{torch.__version__}")
+    build_dir = cpp_extension._get_build_directory(name, False)
+    if build_dir not in sys.path:
+        sys.path.append(build_dir)
+    ops._get_plugin()
+    return dr
+
+
+def nvdiffrast_status() -> tuple[bool, str]:
+    """(True, "") when nvdiffrast rasterizes a triangle on this machine's GPU, else (False, why not).
+    Checked once per process: the import, the plugin build, a context and one rasterization."""
+    if not _STATUS:
+        _STATUS.append(_probe())
+    return _STATUS[0]
+
+
+def _probe() -> tuple[bool, str]:
+    if not torch.cuda.is_available():
+        return False, "no CUDA device"
     try:
-        import nvdiffrast.torch  # noqa: F401
-    except Exception:  # ImportError, or a broken CUDA toolchain at import
-        return False
-    return torch.cuda.is_available()
+        dr = load_nvdiffrast()
+        ctx = dr.RasterizeCudaContext(device=torch.device("cuda"))
+        pos = torch.tensor([[[-0.5, -0.5, 0.0, 1.0], [0.5, -0.5, 0.0, 1.0], [0.0, 0.5, 0.0, 1.0]]],
+                           dtype=torch.float32, device="cuda")
+        tri = torch.tensor([[0, 1, 2]], dtype=torch.int32, device="cuda")
+        rast, _ = dr.rasterize(ctx, pos, tri, resolution=[16, 16])
+        covered = int((rast[..., 3] > 0).sum())
+    except Exception as exc:   # ImportError, a failed plugin build, a CUDA error: say which
+        first = str(exc).strip().splitlines()
+        return False, f"{type(exc).__name__}: {first[0] if first else ''}"[:300]
+    if not 40 <= covered <= 100:   # the triangle covers a quarter of the 256 pixels
+        return False, f"a test triangle covered {covered} of 256 pixels instead of about 64"
+    return True, ""
+
+
+def nvdiffrast_available() -> bool:
+    """Whether nvdiffrast works here (nvdiffrast_status, without the reason)."""
+    return nvdiffrast_status()[0]
 
 
 class NvdiffrastRasterizer:
@@ -31,8 +81,7 @@ class NvdiffrastRasterizer:
     name = "nvdiffrast"
 
     def __init__(self, device: str | torch.device = "cuda"):
-        import nvdiffrast.torch as dr
-
+        dr = load_nvdiffrast()
         self.device = torch.device(device)
         if self.device.type != "cuda":
             raise ValueError(f"the nvdiffrast backend needs a CUDA device, got {self.device}")

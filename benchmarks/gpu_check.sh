@@ -1,0 +1,57 @@
+#!/usr/bin/env bash
+# The GPU check of issue 27, in one go (about 6 minutes on one H100/H200):
+#   1. nvdiffrast: its plugin built (first use) and a test triangle rasterized
+#   2. `saft info`: where `--device auto` puts physics, renders and appearance
+#   3. pytest -m cuda (the GPU-only tests, nvdiffrast's included)
+#   4. the physics benchmark on CUDA (32x32, 50 frames, forward + backward), CPU beside it
+#   5. the render benchmark at 700x800, PyTorch and nvdiffrast backends
+#   6. R1, texture and shape phases, --device auto: wall time and mean CD2
+# Then a table, and one line per number (name=value). Each step has its own time limit, so a hung step
+# costs its limit, not the check. On the lent machine of this workplace (see ../shared/gpu/stage.sh):
+#   bash .gpu/run.sh bash benchmarks/gpu_check.sh
+# Logs go to $OUT (the lent machine's folder that comes back) or /tmp/saft-gpu-check.
+set -u
+cd "$(dirname "$0")/.."
+out=${OUT:-/tmp/saft-gpu-check}
+mkdir -p "$out"
+export PYTHONUNBUFFERED=1
+py=python3
+declare -a rows
+
+step() {   # step NAME LIMIT_S COMMAND...: runs it, keeps its log and its name=value lines
+  local name=$1 limit=$2; shift 2
+  echo "=== $name: $*"
+  local t0=$(date +%s%N)
+  timeout "$limit" "$@" > "$out/$name.log" 2>&1
+  local rc=$?
+  local ms=$(( ($(date +%s%N) - t0) / 1000000 ))
+  local dt=$(printf '%d.%03d' $((ms / 1000)) $((ms % 1000)))
+  tail -n 25 "$out/$name.log"
+  rows+=("$(printf '%-10s rc=%-3s %9s s' "$name" "$rc" "$dt")")
+  echo "${name}_rc=$rc"
+  echo "${name}_s=$dt"
+}
+
+step nvdiffrast 300 $py -c "
+import time; t = time.perf_counter()
+from saft.render.nvdiffrast_backend import nvdiffrast_status
+ok, why = nvdiffrast_status()
+print('nvdiffrast_ok=%d' % ok, why)
+print('nvdiffrast_first_use_s=%.1f' % (time.perf_counter() - t))
+import sys; sys.exit(0 if ok else 1)"
+step info 120 $py -m saft info
+step pytest 300 $py -m pytest -q -m cuda -p no:cacheprovider tests
+step physics 240 $py benchmarks/bench_physics.py --device cuda --sizes 32x32 --frames 50 --threads 1 --repeats 3 \
+  ${SAFT_PHYSICS_ARGS:-}
+step render 180 bash -c "$py benchmarks/bench_render.py --device cuda --backend torch --threads 1 --runs 20 && \
+                         $py benchmarks/bench_render.py --device cuda --backend nvdiffrast --threads 1 --runs 20"
+step r1 420 $py benchmarks/bench_r1.py --device auto --out "$out/r1"
+
+echo
+echo "=== summary"
+printf '%s\n' "${rows[@]}"
+grep -h -E '^[a-z0-9_]+(_[0-9a-z.x-]+)*=[-0-9.e+]+' "$out"/*.log | sort -u | tee "$out/numbers.txt"
+wall=$(grep -h '^r1_wall_s=' "$out/r1.log" | cut -d= -f2)
+cd2=$(grep -h '^r1_cd2_1e-4m2=' "$out/r1.log" | cut -d= -f2)
+echo "r1_gpu_s=${wall:-none}"
+echo "r1_gpu_cd2=${cd2:-none}"
