@@ -29,6 +29,7 @@ from saft.physics.energy import LN10, ElementEval  # noqa: F401 (ElementEval: te
 from saft.physics.kernels import StepKernels
 from saft.physics import solver as _solver_mod
 from saft.physics.solver import CholmodPCGSolver, JacobiCGSolver, ReusedLUSolver, SolveStats, _csr
+from saft.physics.solver_dense import DenseFactorSolver
 from saft.physics.topology import ClothTopology
 
 GRAVITY = (0.0, -9.81, 0.0)
@@ -87,11 +88,24 @@ class PhysicsParams:
         return base if self.anchor is None else base + (self.anchor,)
 
 
-def _solver_for(topology: ClothTopology, solver: str, tol: float, stats: SolveStats):
+# solver name -> DenseFactorSolver options (solver_dense): the reused dense factor's variants
+DENSE_SOLVERS = {
+    "dense": dict(precond="inv32"),  # explicit inverse in float32, one GEMV per application
+    "dense64": dict(precond="inv64"),
+    "densechol": dict(precond="chol"),  # the Cholesky factor, two triangular solves per application
+    "direct": dict(precond="chol", refactor_every_solve=True),  # a fresh factor every solve
+}
+SOLVERS = ("auto", "lu", "cholmod", "cg", *DENSE_SOLVERS)
+
+
+def _solver_for(topology: ClothTopology, solver: str, tol: float, stats: SolveStats, compile: bool = False):
     if solver == "auto":
         # never depends on what is importable: CHOLMOD (opt-in) gives different numbers within the tolerance,
-        # and reconstructions are sensitive to that noise
-        solver = "cg" if topology.device.type != "cpu" else "lu"
+        # and reconstructions are sensitive to that noise. Other devices: the reused dense factor (solver_dense)
+        solver = "dense" if topology.device.type != "cpu" else "lu"
+    if solver in DENSE_SOLVERS:
+        return DenseFactorSolver(topology.csr_indptr, topology.csr_indices, topology.device, tol=tol, stats=stats,
+                                 compile=compile, **DENSE_SOLVERS[solver])
     if solver == "cholmod":
         if not _solver_mod.HAVE_CHOLMOD:
             raise ValueError("solver='cholmod' needs scikit-sparse (sksparse.cholmod), which is not importable")
@@ -103,7 +117,7 @@ def _solver_for(topology: ClothTopology, solver: str, tol: float, stats: SolveSt
         crow = torch.as_tensor(topology.csr_indptr, device=dev, dtype=torch.int64)
         col = torch.as_tensor(topology.csr_indices, device=dev, dtype=torch.int64)
         return JacobiCGSolver(crow, col, topology.diag_idx, tol=tol, stats=stats)
-    raise ValueError(f"solver must be 'auto', 'lu', 'cholmod' or 'cg', got {solver!r}")
+    raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
 
 
 class _Sim:
@@ -177,7 +191,7 @@ class _Sim:
         return K, A
 
     def new_solver(self):
-        return _solver_for(self.t, self.solver_kind, self.tol, self.stats)
+        return _solver_for(self.t, self.solver_kind, self.tol, self.stats, self.kernels.use_compile)
 
     def spmv(self, data, vec):
         t = self.t
@@ -412,9 +426,12 @@ def rollout(
     pinned: vertex indices held exactly; at x0 (pinned_positions None) or at ``pinned_positions``
     (num_frames, P, 3), linearly interpolated within a frame's substeps (targets get no gradient).
     hessian: "projected" (PSD element Hessians, default) or "exact" (true Hessian, may be indefinite).
-    solver: "auto" ("lu" on CPU, whatever is installed; Jacobi PCG on other devices), "lu" (CG preconditioned
+    solver: "auto" ("lu" on CPU, whatever is installed; "dense" on other devices), "lu" (CG preconditioned
     by a reused incomplete LU, SuperLU), "cholmod" (opt-in: CG preconditioned by a CHOLMOD Cholesky factor,
-    needs scikit-sparse; non-SPD falls back to LU) or "cg".
+    needs scikit-sparse; non-SPD falls back to LU), "cg" (Jacobi-preconditioned CG in torch), or, in torch on
+    any device, CG preconditioned by a reused dense Cholesky factor (solver_dense): "dense" (its inverse in
+    float32), "dense64" (the inverse in float64), "densechol" (the factor's triangular solves) or "direct"
+    (a fresh factor every solve).
     tol: relative residual of every linear solve. stats: if a dict, receives solver counters (forward;
     the backward's are added as bwd_* when it runs).
     compile: torch.compile the per-substep element kernels (None: the SAFT_PHYSICS_COMPILE environment

@@ -52,11 +52,12 @@ class SolveStats:
         self.iterations = 0
         self.factorizations = 0
         self.fallbacks = 0
+        self.extra: dict[str, int] = {}  # a solver's own counters (the dense solver's host reads)
 
     def as_dict(self):
         return dict(
             solves=self.solves, iterations=self.iterations, factorizations=self.factorizations,
-            fallbacks=self.fallbacks,
+            fallbacks=self.fallbacks, **self.extra,
         )
 
 

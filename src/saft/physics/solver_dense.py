@@ -1,0 +1,315 @@
+"""CG preconditioned by a reused dense factor, in torch on any device (the CUDA default).
+
+The same scheme as ``solver.ReusedLUSolver`` (the CPU default), with pieces that suit a GPU: a dense
+Cholesky factor (cuSOLVER potrf through ``torch.linalg.cholesky_ex``) of some recent A = M + h^2 K is kept
+and used as the preconditioner of float64 CG for the following solves; once CG needs more than
+``refactor_after`` iterations the current A is factorised, and when CG fails (``max_iter``, or a breakdown
+because A is indefinite) it is factorised afresh, and when that fails too (not positive definite) A is solved
+directly by a dense LU with partial pivoting and iterative refinement. The convergence test is the CPU's:
+||b - A x|| <= tol ||b||. The adjoint pass of the backward reuses the factors kept from the forward pass,
+the one made nearest to each substep (``at_step``), as on the CPU.
+
+Preconditioners (``precond``):
+  "inv32"  the factor's explicit inverse (cholesky_inverse), stored in float32 and applied as one GEMV
+           (37.7 MB read on R1's 3072 unknowns: ~10 us of HBM time; a triangular solve pair is a long
+           chain of small dependent kernels on a GPU). CG itself stays float64.
+  "inv64"  the same in float64.
+  "chol"   the Cholesky factor itself, applied by cholesky_solve (two triangular solves).
+``refactor_every_solve``: factorise every A (a direct solve; CG then converges in one or two iterations).
+
+A mat-vec with A uses the fixed pattern as ELLPACK (rows padded to the longest, padding pointing at a zero
+value): a gather, a product and a row sum, the same three kernels whatever the row lengths, deterministic
+(no atomics), and the same code on the CPU. CG runs in blocks of ``block`` iterations whose updates are
+masked once the residual is small enough (or on breakdown), so the host reads the state (one sync) only
+between blocks; the first read comes after as many iterations as the previous solve needed. On CUDA the
+set-up of a solve and a block are each recorded once as a CUDA graph (``cuda_graphs``); the buffers and
+graphs belong to a workspace shared by the solvers of one pattern (one rollout after another).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import torch
+from torch.profiler import record_function
+
+from saft.physics.cuda_graphs import Graphed, graphs_wanted
+from saft.physics.solver import SolveStats
+
+PRECONDS = ("inv32", "inv64", "chol")
+
+
+def ell_pattern(indptr: np.ndarray, indices: np.ndarray):
+    """(src, col), both (n, w): the CSR pattern as ELLPACK. src[i, j] is the position in the CSR data of
+    row i's j-th entry (nnz, one past the end, for padding), col[i, j] its column (0 for padding)."""
+    indptr = np.asarray(indptr, dtype=np.int64)
+    n, nnz = len(indptr) - 1, int(indptr[-1])
+    lens = np.diff(indptr)
+    w = max(int(lens.max()) if n else 0, 1)
+    rows = np.repeat(np.arange(n), lens)
+    pos = np.arange(nnz) - np.repeat(indptr[:-1], lens)
+    src = np.full((n, w), nnz, dtype=np.int64)
+    col = np.zeros((n, w), dtype=np.int64)
+    src[rows, pos] = np.arange(nnz)
+    col[rows, pos] = np.asarray(indices, dtype=np.int64)
+    return src, col
+
+
+class _Work:
+    """The static buffers of one pattern on one device, and the set-up and CG-block functions on them
+    (recorded as CUDA graphs on CUDA). ``owner``: the number of the factor loaded as the preconditioner.
+
+    The block is written for few kernels per iteration (each is a launch, or a graph node of a few us, on a
+    GPU): z and r are the rows of one (2, n) array so that r.z and r.r are one GEMV, and the state is two
+    scalars, ``act`` (True while iterating) and ``its``. A breakdown (p.Ap <= 0 or r.z <= 0: A or the factor
+    not positive definite) stops the iteration unconverged, which the host reads as a failure."""
+
+    def __init__(self, indptr, indices, device, precond: str, block: int, graphs: bool, compile: bool):
+        f = dict(device=device, dtype=torch.float64)
+        n, nnz = len(indptr) - 1, int(indptr[-1])
+        self.n, self.nnz, self.block, self.precond = n, nnz, block, precond
+        src, col = ell_pattern(indptr, indices)
+        self.src = torch.as_tensor(src.reshape(-1), device=device)
+        self.col = torch.as_tensor(col, device=device)
+        rows = np.repeat(np.arange(n, dtype=np.int64), np.diff(np.asarray(indptr, dtype=np.int64)))
+        self.flat = torch.as_tensor(rows * n + np.asarray(indices, dtype=np.int64), device=device)
+        self.data = torch.zeros(nnz + 1, **f)  # A's CSR values and one zero for the ELL padding
+        self.vals = torch.zeros(src.shape, **f)
+        self.dense = torch.zeros(n, n, **f)  # A for a factorisation or the direct solve
+        self.b, self.x, self.p, self.Ap = (torch.zeros(n, **f) for _ in range(4))
+        self.zr = torch.zeros(2, n, **f)
+        self.z, self.r = self.zr[0], self.zr[1]
+        self.rzrr = torch.zeros(2, **f)  # (r.z, r.r) of the latest iteration
+        self.lim = torch.zeros(2, **f)  # (0, atol^2): CG goes on while (r.z, r.r) > lim
+        self.rz, self.tol2, self.its = (torch.zeros((), **f) for _ in range(3))
+        self.act = torch.zeros((), dtype=torch.bool, device=device)
+        pdt = torch.float32 if precond == "inv32" else torch.float64
+        self.P = torch.eye(n, dtype=pdt, device=device)  # the preconditioner (inverse or Cholesky factor)
+        self.owner = None
+        rec = graphs and precond != "chol"  # cholesky_solve stays eager (cuSOLVER potrs is not recorded)
+        self.graphs = rec
+        self.setup = Graphed(self._setup, record=rec)
+        self.run_block = Graphed(self._block, record=rec, compile=rec and compile)
+
+    def load(self, owner, F):
+        """Make factor number ``owner`` (F) the preconditioner: copied into the recorded buffer when graphs
+        read it by address."""
+        if self.owner == owner:
+            return
+        if self.graphs:
+            self.P.copy_(F)
+        else:
+            self.P = F
+        self.owner = owner
+
+    def spmv(self, v, out):
+        torch.sum(self.vals * v[self.col], dim=1, out=out)
+
+    def apply_precond(self, r, out):
+        if self.precond == "chol":
+            out.copy_(torch.cholesky_solve(r[:, None], self.P)[:, 0])
+        elif self.precond == "inv32":
+            out.copy_(torch.mv(self.P, r.to(torch.float32)))
+        else:
+            torch.mv(self.P, r, out=out)
+
+    def _setup(self):
+        """From (data, b, x): the ELL values, r = b - A x, z = P r, p = z and the state (x = 0 when b = 0)."""
+        torch.index_select(self.data, 0, self.src, out=self.vals.view(-1))
+        bb = torch.dot(self.b, self.b)
+        torch.mul(self.tol2, bb, out=self.lim[1])
+        self.x.mul_(bb > 0)
+        self.spmv(self.x, self.Ap)
+        torch.sub(self.b, self.Ap, out=self.r)
+        self.apply_precond(self.r, self.z)
+        self.p.copy_(self.z)
+        torch.mv(self.zr, self.r, out=self.rzrr)
+        self.rz.copy_(self.rzrr[0])
+        torch.all(self.rzrr > self.lim, out=self.act)
+        self.its.zero_()
+
+    def _block(self):
+        for _ in range(self.block):
+            self._iteration()
+
+    def _iteration(self):
+        """One CG iteration, a no-op once ``act`` is 0 (converged or broken down): no host synchronisation."""
+        self.spmv(self.p, self.Ap)
+        pAp = torch.dot(self.p, self.Ap)
+        go = (pAp > 0) & self.act
+        alpha = torch.where(go, self.rz / pAp, 0.0)
+        self.x.addcmul_(alpha, self.p)
+        self.r.addcmul_(alpha, self.Ap, value=-1.0)
+        self.its.add_(go)
+        self.apply_precond(self.r, self.z)
+        torch.mv(self.zr, self.r, out=self.rzrr)  # (r.z, r.r), unchanged once stopped
+        rz_new = self.rzrr[0]
+        torch.logical_and(go, (self.rzrr > self.lim).all(), out=self.act)
+        beta = torch.where(self.act, rz_new / self.rz, 0.0)  # rz > 0 wherever act
+        torch.addcmul(self.z, beta, self.p, out=self.p)
+        torch.where(self.act, rz_new, self.rz, out=self.rz)
+
+    def state(self):
+        """(still iterating, converged, iterations): one host synchronisation."""
+        a, rr, atol2, i = torch.stack((self.act.double(), self.rzrr[1], self.lim[1], self.its)).tolist()
+        return a > 0, rr <= atol2, int(i)
+
+
+_SERIAL = itertools.count(1)  # names every factor made, process-wide (the workspace's ``owner``)
+_WORK: dict = {}  # (device, precond, block, graphs, pattern) -> _Work, one per topology in use
+
+
+def _work(indptr, indices, device, precond, block, graphs, compile) -> _Work:
+    key = (str(device), precond, block, graphs, compile, len(indptr), len(indices), hash(indptr.tobytes()),
+           hash(indices.tobytes()))
+    w = _WORK.get(key)
+    if w is None:
+        if len(_WORK) >= 8:  # a few topologies at most; an old one's buffers go
+            _WORK.pop(next(iter(_WORK)))
+        w = _WORK[key] = _Work(indptr, indices, device, precond, block, graphs, compile)
+    return w
+
+
+class DenseFactorSolver:
+    """CG preconditioned by a reused dense factor (Cholesky, or its inverse), refactorised when needed."""
+
+    def __init__(self, indptr: np.ndarray, indices: np.ndarray, device, tol: float = 1e-6, max_iter: int = 60,
+                 refactor_after: int = 20, precond: str = "inv32", refactor_every_solve: bool = False,
+                 block: int = 2, graphs: bool | None = None, compile: bool = False,
+                 stats: SolveStats | None = None, keep_factors_bytes: int = 1 << 30):
+        if precond not in PRECONDS:
+            raise ValueError(f"precond must be one of {PRECONDS}, got {precond!r}")
+        indptr = np.ascontiguousarray(indptr, dtype=np.int64)
+        indices = np.ascontiguousarray(indices, dtype=np.int64)
+        device = torch.device(device)
+        g = graphs_wanted(device, graphs)
+        self.ws = _work(indptr, indices, device, precond, int(block), g, bool(compile) and g)
+        self.ws.tol2.fill_(tol * tol)
+        self.n = self.ws.n
+        self.tol = tol
+        self.max_iter = max_iter
+        self.refactor_after = refactor_after
+        self.refactor_every_solve = refactor_every_solve
+        self.precond = precond
+        self.stats = stats if stats is not None else SolveStats()
+        self.stats.extra.setdefault("checks", 0)  # host reads of the CG state
+        self.F = None  # the current factor (inverse or Cholesky); None: none yet, or A was not SPD
+        self._serial = 0  # the current factor's number from _SERIAL
+        self._last_its = 0
+        # factors made during the forward pass, by substep (as ReusedLUSolver): the adjoint solve of substep i
+        # is preconditioned by the one made nearest to i
+        self.step = None
+        self.factors: dict[int, tuple[int, torch.Tensor]] = {}
+        self.keep_factors_bytes = keep_factors_bytes
+
+    def at_step(self, i: int | None, select: bool = False):
+        """Tag the following solves with substep ``i``; with ``select`` switch to the kept factor made nearest
+        to it (the backward pass walks the substeps in reverse)."""
+        self.step = i
+        if select and self.factors and i is not None:
+            j = min(self.factors, key=lambda k: abs(k - i))
+            self._serial, self.F = self.factors[j]
+
+    def _keep(self):
+        if self.step is None:
+            return
+        size = self.F.numel() * self.F.element_size()
+        used = sum(F.numel() * F.element_size() for _, F in self.factors.values())
+        if used + size > self.keep_factors_bytes:
+            for k in sorted(self.factors)[1::2]:  # over budget: every other one goes, keeping the spread
+                del self.factors[k]
+            used = sum(F.numel() * F.element_size() for _, F in self.factors.values())
+            if used + size > self.keep_factors_bytes:
+                return
+        self.factors[self.step] = (self._serial, self.F)
+
+    def _dense(self, data):
+        ws = self.ws
+        ws.dense.zero_()
+        ws.dense.view(-1).index_put_((ws.flat,), data)
+        return ws.dense
+
+    def factorize(self, data: torch.Tensor) -> bool:
+        """Factorise the current A: True when it is positive definite (the factor becomes the
+        preconditioner), False otherwise (no factor)."""
+        with record_function("saft.dense.factorize"):
+            self.stats.factorizations += 1
+            L, info = torch.linalg.cholesky_ex(self._dense(data))
+            if int(info) != 0:
+                self.F = None
+                return False
+            if self.precond == "chol":
+                F = L
+            else:
+                F = torch.cholesky_inverse(L)
+                F = 0.5 * (F + F.T)  # exactly symmetric (CG's preconditioner must be)
+                if self.precond == "inv32":
+                    F = F.to(torch.float32)
+            self._serial = next(_SERIAL)
+            self.F = F
+            self._keep()
+            return True
+
+    def solve(self, data: torch.Tensor, b: torch.Tensor, x0: torch.Tensor | None = None) -> torch.Tensor:
+        self.stats.solves += 1
+        if self.refactor_every_solve:
+            self.F = None
+        if self.F is not None:
+            x, its = self._pcg(data, b, x0)
+            if x is not None:
+                if its > self.refactor_after:
+                    self.factorize(data)  # also in the adjoint pass: then kept for the earlier substeps
+                return x
+            self.stats.fallbacks += 1
+        if self.factorize(data):
+            x, its = self._pcg(data, b, x0)  # with the fresh factor: a few iterations
+            if x is not None:
+                return x
+        return self._direct(data, b)
+
+    def _pcg(self, data, b, x0):
+        """CG from x0 preconditioned by the current factor: (x, iterations), x None on failure."""
+        with record_function("saft.dense.pcg"):
+            ws = self.ws
+            ws.load(self._serial, self.F)
+            ws.data[: ws.nnz].copy_(data)
+            ws.b.copy_(b)
+            if x0 is None:
+                ws.x.zero_()
+            else:
+                ws.x.copy_(x0)
+            ws.setup()
+            k = ws.block
+            done = 0
+            blocks = max(1, math.ceil(self._last_its / k))  # where the previous solve converged
+            while True:
+                blocks = max(1, min(blocks, math.ceil((self.max_iter - done) / k)))
+                for _ in range(blocks):
+                    ws.run_block()
+                done += blocks * k
+                active, converged, its = ws.state()
+                self.stats.extra["checks"] += 1
+                if not active or done >= self.max_iter:
+                    break
+                blocks = 1
+            self.stats.iterations += its
+            if not converged:  # breakdown (A or the factor not SPD), or max_iter (rounded up to a block)
+                return None, its
+            self._last_its = its
+            return ws.x.clone(), its
+
+    def _direct(self, data, b):
+        """Dense LU with partial pivoting (exact for any non-singular A), refined to the tolerance."""
+        with record_function("saft.dense.direct"):
+            A = self._dense(data).clone()
+            LU, piv = torch.linalg.lu_factor(A)
+            x = torch.linalg.lu_solve(LU, piv, b[:, None])[:, 0]
+            atol = self.tol * float(torch.linalg.vector_norm(b))
+            for _ in range(4):
+                r = b - A @ x
+                if float(torch.linalg.vector_norm(r)) <= atol:
+                    break
+                x = x + torch.linalg.lu_solve(LU, piv, r[:, None])[:, 0]
+            return x
