@@ -102,8 +102,9 @@ def main():
                     help="comma list of NxN (32x32 is the R1 template when ../shared has it); default "
                          "16x16,32x32,64x64, in the solver comparison 32x32")
     ap.add_argument("--threads", default="1,2", help="comma list of torch thread counts")
-    ap.add_argument("--compile", choices=("0", "1", "env"), default="env",
-                    help="torch.compile the element kernels (env: SAFT_PHYSICS_COMPILE, off by default)")
+    ap.add_argument("--compile", choices=("0", "1", "env", "both"), default="env",
+                    help="torch.compile the element kernels (env: SAFT_PHYSICS_COMPILE, off by default); in the "
+                         "solver comparison also the CG blocks, and 'both' runs each solver without, then with")
     ap.add_argument("--kernels", choices=("auto", "numba", "torch", "env"), default="env",
                     help="element kernel backend (env: SAFT_PHYSICS_KERNELS, auto by default: numba on CPU)")
     ap.add_argument("--device", default=None, help="cpu or cuda: compare solvers there (see the docstring)")
@@ -119,6 +120,8 @@ def main():
     ap.add_argument("--budget-s", type=float, default=4.0,
                     help="comparison mode: a solver whose warm-up takes longer gets one timed run, not --repeats")
     args = ap.parse_args()
+    if args.device is None and args.solver is None and args.compile == "both":
+        ap.error("--compile both is for the solver comparison (--device/--solver)")
     if args.device is not None or args.solver is not None:
         from bench_physics_device import compare  # noqa: E402 (a sibling script)
 

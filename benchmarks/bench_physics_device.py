@@ -14,6 +14,7 @@ the fastest solver (physics_best_solver=).
 
 from __future__ import annotations
 
+import itertools
 import os
 import statistics
 import time
@@ -52,14 +53,14 @@ def _stats_line(st):
             f" checks/solve {st.get('bwd_checks', 0) / max(st.get('bwd_solves', 1), 1):.2f}")
 
 
-def _profile(topo, frames, solver, tol, run_once):
+def _profile(topo, frames, solver, tol, run_once, compile):
     """One profiled fwd+bwd run: per saft range (CPU ms incl. waits, GPU ms), launches and syncs per substep."""
     from torch.profiler import ProfilerActivity, profile
 
     cuda = topo.device.type == "cuda"
     acts = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if cuda else [])
     with profile(activities=acts) as prof:
-        wall = run_once(topo, frames, True, solver=solver, tol=tol)[0]
+        wall = run_once(topo, frames, True, solver=solver, tol=tol, compile=compile)[0]
     ka = prof.key_averages()
     substeps = 2 * 4 * (frames - 1)
 
@@ -87,8 +88,34 @@ def _profile(topo, frames, solver, tol, run_once):
         print(f"    gpu {dev_ms(e, True):8.1f} ms  {e.count:7d}x  {e.key[:90]}")
 
 
+def _run_solver(topo, name, tag, compile, args, ref, run_once):
+    """Warm-up, timed runs, differences from the CPU reference, profile: (median s, diffs or None)."""
+    frames, tol, dev = args.frames, args.tol, topo.device
+    t0 = time.perf_counter()
+    try:
+        warm = run_once(topo, frames, True, solver=name, tol=tol, keep=True, compile=compile)
+    except Exception as exc:  # noqa: BLE001 - one broken variant must not hide the others' numbers
+        print(f"{tag}: FAILED {exc!r:.300}", flush=True)
+        return None
+    reps = args.repeats if time.perf_counter() - t0 <= args.budget_s else 1
+    runs = [run_once(topo, frames, True, solver=name, tol=tol, compile=compile) for _ in range(reps)]
+    med = statistics.median(r[0] for r in runs)
+    print(f"{tag}: {med:.3f} s (median of {reps}; warm-up {warm[0]:.3f} s)  {_stats_line(runs[-1][2])}")
+    print(f"physics_fwdbwd_s_{tag}={med:.3f}")
+    diff = None
+    if ref is not None:
+        diff = _diffs(warm[3], warm[4], *ref)
+        print(f"physics_{dev.type}_vs_cpu_maxdiff_{tag}={diff[0]:.3e}")
+        print(f"physics_{dev.type}_vs_cpu_maxdiff_grad_{tag}={diff[1]:.3e}")
+    if args.profile_frames > 1:
+        _profile(topo, args.profile_frames, name, tol, run_once, compile)
+    print(flush=True)
+    return med, diff
+
+
 def compare(args, load_case, run_once):
     dev = torch.device(args.device or "cpu")
+    compiles = {"env": [None], "0": [False], "1": [True], "both": [False, True]}[args.compile]
     names = (args.solver or "auto").split(",")
     if names == ["all"]:
         names = list(ALL)
@@ -101,7 +128,7 @@ def compare(args, load_case, run_once):
     card = torch.cuda.get_device_name(dev) if cuda else "CPU"
     print(f"saft.physics solvers: {label}, {topo.num_vertices} vertices ({3 * topo.num_vertices} unknowns), "
           f"{frames} frames x 4 substeps, fwd+bwd, float64, tol {tol:g}, on {dev} ({card}), torch "
-          f"{torch.__version__}, median of {args.repeats} after a warm-up", flush=True)
+          f"{torch.__version__}, median of {args.repeats} after a warm-up, compile={args.compile}", flush=True)
     ref = None
     if not args.no_cpu_reference:
         run_once(topo_cpu, 3, True, tol=tol)  # numba's compilation (or its disk cache)
@@ -115,32 +142,13 @@ def compare(args, load_case, run_once):
         print(f"physics_cpu_tol_spread_grad={sg:.3e}", flush=True)
     modes = [None] if not cuda else (["1", "0"] if args.graphs == "both" else [args.graphs])
     best = None
-    for mode in modes:
+    for mode, compile, name in itertools.product(modes, compiles, names):
         if mode is not None:
             os.environ[ENV_GRAPHS] = mode
-        for name in names:
-            tag = name if mode in (None, "1") else f"{name}_nographs"
-            t0 = time.perf_counter()
-            try:
-                warm = run_once(topo, frames, True, solver=name, tol=tol, keep=True)
-            except Exception as exc:  # noqa: BLE001 - one broken variant must not hide the others' numbers
-                print(f"{tag}: FAILED {exc!r:.300}", flush=True)
-                continue
-            reps = args.repeats if time.perf_counter() - t0 <= args.budget_s else 1
-            runs = [run_once(topo, frames, True, solver=name, tol=tol) for _ in range(reps)]
-            med = statistics.median(r[0] for r in runs)
-            print(f"{tag}: {med:.3f} s (median of {reps}; warm-up {warm[0]:.3f} s)  {_stats_line(runs[-1][2])}")
-            print(f"physics_fwdbwd_s_{tag}={med:.3f}")
-            diff = None
-            if ref is not None:
-                diff = _diffs(warm[3], warm[4], *ref)
-                print(f"physics_{dev.type}_vs_cpu_maxdiff_{tag}={diff[0]:.3e}")
-                print(f"physics_{dev.type}_vs_cpu_maxdiff_grad_{tag}={diff[1]:.3e}")
-            if args.profile_frames > 1:
-                _profile(topo, args.profile_frames, name, tol, run_once)
-            if best is None or med < best[1]:
-                best = (tag, med, diff)
-            print(flush=True)
+        tag = name + ("_nographs" if mode == "0" else "") + ("_compiled" if compile else "")
+        res = _run_solver(topo, name, tag, compile, args, ref, run_once)
+        if res is not None and (best is None or res[0] < best[1]):
+            best = (tag, *res)
     if best is not None:
         print(f"physics_best_solver={best[0]}")
         print(f"physics_fwdbwd_s={best[1]:.3f}")

@@ -2,6 +2,7 @@
 code: linear solves, refactorisation, the fallbacks on indefinite matrices, and whole rollouts with their
 gradients against the CPU default (numba kernels + ReusedLUSolver). The CUDA test records the graphs."""
 
+import shutil
 import sys
 from pathlib import Path
 
@@ -62,6 +63,24 @@ def test_refactorises_once_cg_needs_more_than_refactor_after():
     its = s.stats.iterations
     s.solve(_t(A1), _t(b))
     assert s.stats.iterations - its <= 2  # with A1's own factor
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("c++") is None and shutil.which("g++") is None, reason="torch.compile needs a C++ compiler")
+def test_compiled_cg_gives_the_eager_result():
+    """compile=True (torch.compile of the set-up and the CG block, as on CUDA before the graphs are recorded):
+    the same iterations and solution as eager. Inductor once lost the updates of 0-dim state tensors and of
+    values read through views of ``out=`` results; the block is written to avoid both."""
+    t, A0, b, _ = grid_system(n=6)
+    _, A1, _, A1m = grid_system(n=6, drift=2e-4)
+    res = []
+    for compile in (False, True):
+        s = _solver(t, tol=1e-10, compile=compile)
+        x = s.solve(_t(A1), _t(b), s.solve(_t(A0), _t(b)))
+        res.append((x.numpy(), s.stats.as_dict()))
+    assert res[1][1] == res[0][1] and res[0][1]["fallbacks"] == 0
+    assert np.linalg.norm(A1m @ res[1][0] - b) <= 1e-10 * np.linalg.norm(b)
+    np.testing.assert_allclose(res[1][0], res[0][0], rtol=0, atol=1e-8 * np.abs(res[0][0]).max())
 
 
 def test_zero_right_hand_side_gives_zero():

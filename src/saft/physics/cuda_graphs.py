@@ -6,8 +6,8 @@ Every shape is fixed by the topology, so each piece is recorded once with ``torc
 as one launch. ``Graphed`` records a function of static input buffers; on any other device, or where
 recording fails, it calls the function directly (one code path, one warning). The arithmetic is the same
 kernels either way: replaying a graph gives the bits of the eager run. With ``compile`` the function is
-first ``torch.compile``d (inductor fuses the elementwise chains into a few kernels), then recorded; a
-compilation failure falls back to the eager function, with a warning.
+first ``torch.compile``d (inductor fuses the elementwise chains into a few kernels), then recorded (or, on
+the CPU, called compiled); a compilation failure falls back to the eager function, with a warning.
 
 ``SAFT_PHYSICS_GRAPHS=0`` turns the recording off (eager CUDA, for A/B measurements).
 """
@@ -40,29 +40,33 @@ class Graphed:
     tensor object given at the previous call is not copied again (the callers pass constants such as the
     stiffnesses that way; none is modified in place between calls). A function of no inputs works on buffers
     it holds itself (a CG block on its workspace). ``keep`` holds tensors the graph reads by address (the
-    topology's arrays) alive as long as the graph. ``record`` False: plain calls."""
+    topology's arrays) alive as long as the graph. ``record`` False: plain calls (compiled with ``compile``)."""
 
     def __init__(self, fn, example=(), record: bool = True, compile: bool = False, keep=()):
-        self.fn = fn
+        self.eager = fn
+        self.fn = torch.compile(fn, dynamic=False) if compile else fn
         self.keep = keep
         self.graph = None
         self.outputs = None
         self.inputs = [a.detach().clone() for a in example] if record else []
         self.last = [None] * len(self.inputs)
         if record:
-            self._record(compile)
+            self._record()
 
-    def _record(self, compile: bool):
+    def _uncompile(self, exc):
+        self.fn = self.eager
+        warnings.warn(f"saft.physics: torch.compile failed ({exc!r:.200}); running eagerly", RuntimeWarning,
+                      stacklevel=4)
+
+    def _record(self):
         global _failed
         fn = self.fn
-        if compile:
+        if fn is not self.eager:
             try:
-                fn = torch.compile(self.fn, dynamic=False)
-                self._warm(fn)
+                self._warm(fn)  # compiles
             except Exception as exc:  # noqa: BLE001 - any compiler problem: record the eager function
+                self._uncompile(exc)
                 fn = self.fn
-                warnings.warn(f"saft.physics: torch.compile failed ({exc!r:.200}); recording eagerly",
-                              RuntimeWarning, stacklevel=3)
         try:
             self._warm(fn)
             g = torch.cuda.CUDAGraph()
@@ -86,6 +90,11 @@ class Graphed:
 
     def __call__(self, *args):
         if self.graph is None:
+            if self.fn is not self.eager:
+                try:
+                    return self.fn(*args)
+                except Exception as exc:  # noqa: BLE001 - any compiler problem: stay correct, run eagerly
+                    self._uncompile(exc)
             return self.fn(*args)
         for k, (buf, a) in enumerate(zip(self.inputs, args)):
             if a is not self.last[k]:

@@ -62,36 +62,36 @@ class _Work:
     (recorded as CUDA graphs on CUDA). ``owner``: the number of the factor loaded as the preconditioner.
 
     The block is written for few kernels per iteration (each is a launch, or a graph node of a few us, on a
-    GPU): z and r are the rows of one (2, n) array so that r.z and r.r are one GEMV, and the state is two
-    scalars, ``act`` (True while iterating) and ``its``. A breakdown (p.Ap <= 0 or r.z <= 0: A or the factor
-    not positive definite) stops the iteration unconverged, which the host reads as a failure."""
+    GPU), and without ``out=`` arguments or views of the state (torch.compile's functionalisation mishandled
+    them: a value read back from an ``out=`` result through a view came out stale). The state is x, r, p and
+    four scalars: r.z, r.r, ``act`` (True while iterating) and ``its``. A breakdown (p.Ap <= 0 or r.z <= 0:
+    A or the factor not positive definite) stops the iteration unconverged, which the host reads as a
+    failure."""
 
     def __init__(self, indptr, indices, device, precond: str, block: int, graphs: bool, compile: bool):
         f = dict(device=device, dtype=torch.float64)
         n, nnz = len(indptr) - 1, int(indptr[-1])
         self.n, self.nnz, self.block, self.precond = n, nnz, block, precond
         src, col = ell_pattern(indptr, indices)
-        self.src = torch.as_tensor(src.reshape(-1), device=device)
+        self.src = torch.as_tensor(src, device=device)
         self.col = torch.as_tensor(col, device=device)
         rows = np.repeat(np.arange(n, dtype=np.int64), np.diff(np.asarray(indptr, dtype=np.int64)))
         self.flat = torch.as_tensor(rows * n + np.asarray(indices, dtype=np.int64), device=device)
         self.data = torch.zeros(nnz + 1, **f)  # A's CSR values and one zero for the ELL padding
         self.vals = torch.zeros(src.shape, **f)
         self.dense = torch.zeros(n, n, **f)  # A for a factorisation or the direct solve
-        self.b, self.x, self.p, self.Ap = (torch.zeros(n, **f) for _ in range(4))
-        self.zr = torch.zeros(2, n, **f)
-        self.z, self.r = self.zr[0], self.zr[1]
-        self.rzrr = torch.zeros(2, **f)  # (r.z, r.r) of the latest iteration
-        self.lim = torch.zeros(2, **f)  # (0, atol^2): CG goes on while (r.z, r.r) > lim
-        self.rz, self.tol2, self.its = (torch.zeros((), **f) for _ in range(3))
-        self.act = torch.zeros((), dtype=torch.bool, device=device)
+        self.b, self.x, self.r, self.p = (torch.zeros(n, **f) for _ in range(4))
+        # the scalars as 1-element arrays: torch.compile turned 0-dim CPU tensors into constants
+        self.rz, self.rr, self.atol2, self.tol2, self.its = (torch.zeros(1, **f) for _ in range(5))
+        self.act = torch.zeros(1, dtype=torch.bool, device=device)
+        self.tol = None  # the tolerance tol2 holds the square of
         pdt = torch.float32 if precond == "inv32" else torch.float64
         self.P = torch.eye(n, dtype=pdt, device=device)  # the preconditioner (inverse or Cholesky factor)
         self.owner = None
         rec = graphs and precond != "chol"  # cholesky_solve stays eager (cuSOLVER potrs is not recorded)
         self.graphs = rec
-        self.setup = Graphed(self._setup, record=rec)
-        self.run_block = Graphed(self._block, record=rec, compile=rec and compile)
+        self.setup = Graphed(self._setup, record=rec, compile=compile)
+        self.run_block = Graphed(self._block, record=rec, compile=compile)
 
     def load(self, owner, F):
         """Make factor number ``owner`` (F) the preconditioner: copied into the recorded buffer when graphs
@@ -104,30 +104,30 @@ class _Work:
             self.P = F
         self.owner = owner
 
-    def spmv(self, v, out):
-        torch.sum(self.vals * v[self.col], dim=1, out=out)
+    def spmv(self, v):
+        return (self.vals * v[self.col]).sum(1)
 
-    def apply_precond(self, r, out):
+    def apply_precond(self, r):
         if self.precond == "chol":
-            out.copy_(torch.cholesky_solve(r[:, None], self.P)[:, 0])
-        elif self.precond == "inv32":
-            out.copy_(torch.mv(self.P, r.to(torch.float32)))
-        else:
-            torch.mv(self.P, r, out=out)
+            return torch.cholesky_solve(r[:, None], self.P)[:, 0]
+        if self.precond == "inv32":
+            return torch.mv(self.P, r.to(torch.float32)).to(torch.float64)
+        return torch.mv(self.P, r)
 
     def _setup(self):
-        """From (data, b, x): the ELL values, r = b - A x, z = P r, p = z and the state (x = 0 when b = 0)."""
-        torch.index_select(self.data, 0, self.src, out=self.vals.view(-1))
+        """From (data, b, x): the ELL values, r = b - A x, p = P r and the state (x = 0 when b = 0)."""
+        self.vals.copy_(self.data[self.src])
         bb = torch.dot(self.b, self.b)
-        torch.mul(self.tol2, bb, out=self.lim[1])
+        self.atol2.copy_(self.tol2 * bb)
         self.x.mul_(bb > 0)
-        self.spmv(self.x, self.Ap)
-        torch.sub(self.b, self.Ap, out=self.r)
-        self.apply_precond(self.r, self.z)
-        self.p.copy_(self.z)
-        torch.mv(self.zr, self.r, out=self.rzrr)
-        self.rz.copy_(self.rzrr[0])
-        torch.all(self.rzrr > self.lim, out=self.act)
+        self.r.copy_(self.b - self.spmv(self.x))
+        z = self.apply_precond(self.r)
+        self.p.copy_(z)
+        rz = torch.dot(self.r, z)
+        rr = torch.dot(self.r, self.r)
+        self.rz.copy_(rz)
+        self.rr.copy_(rr)
+        self.act.copy_((rr > self.atol2) & (rz > 0))
         self.its.zero_()
 
     def _block(self):
@@ -135,25 +135,28 @@ class _Work:
             self._iteration()
 
     def _iteration(self):
-        """One CG iteration, a no-op once ``act`` is 0 (converged or broken down): no host synchronisation."""
-        self.spmv(self.p, self.Ap)
-        pAp = torch.dot(self.p, self.Ap)
+        """One CG iteration, a no-op once ``act`` is False (converged or broken down): no host synchronisation."""
+        p, r = self.p, self.r
+        Ap = self.spmv(p)
+        pAp = torch.dot(p, Ap)
         go = (pAp > 0) & self.act
         alpha = torch.where(go, self.rz / pAp, 0.0)
-        self.x.addcmul_(alpha, self.p)
-        self.r.addcmul_(alpha, self.Ap, value=-1.0)
+        self.x.addcmul_(alpha, p)
+        r.addcmul_(alpha, Ap, value=-1.0)
         self.its.add_(go)
-        self.apply_precond(self.r, self.z)
-        torch.mv(self.zr, self.r, out=self.rzrr)  # (r.z, r.r), unchanged once stopped
-        rz_new = self.rzrr[0]
-        torch.logical_and(go, (self.rzrr > self.lim).all(), out=self.act)
-        beta = torch.where(self.act, rz_new / self.rz, 0.0)  # rz > 0 wherever act
-        torch.addcmul(self.z, beta, self.p, out=self.p)
-        torch.where(self.act, rz_new, self.rz, out=self.rz)
+        z = self.apply_precond(r)
+        rz_new = torch.dot(r, z)
+        rr = torch.dot(r, r)
+        act = go & (rz_new > 0) & (rr > self.atol2)
+        beta = torch.where(act, rz_new / self.rz, 0.0)  # rz > 0 wherever act
+        p.mul_(beta).add_(z)
+        self.rz.copy_(torch.where(act, rz_new, self.rz))
+        self.rr.copy_(rr)
+        self.act.copy_(act)
 
     def state(self):
         """(still iterating, converged, iterations): one host synchronisation."""
-        a, rr, atol2, i = torch.stack((self.act.double(), self.rzrr[1], self.lim[1], self.its)).tolist()
+        a, rr, atol2, i = torch.cat((self.act.double(), self.rr, self.atol2, self.its)).tolist()
         return a > 0, rr <= atol2, int(i)
 
 
@@ -185,8 +188,7 @@ class DenseFactorSolver:
         indices = np.ascontiguousarray(indices, dtype=np.int64)
         device = torch.device(device)
         g = graphs_wanted(device, graphs)
-        self.ws = _work(indptr, indices, device, precond, int(block), g, bool(compile) and g)
-        self.ws.tol2.fill_(tol * tol)
+        self.ws = _work(indptr, indices, device, precond, int(block), g, bool(compile) and precond != "chol")
         self.n = self.ws.n
         self.tol = tol
         self.max_iter = max_iter
@@ -274,6 +276,9 @@ class DenseFactorSolver:
         with record_function("saft.dense.pcg"):
             ws = self.ws
             ws.load(self._serial, self.F)
+            if ws.tol != self.tol:  # the workspace is shared: solvers of other tolerances may have run
+                ws.tol2.fill_(self.tol * self.tol)
+                ws.tol = self.tol
             ws.data[: ws.nnz].copy_(data)
             ws.b.copy_(b)
             if x0 is None:
