@@ -12,18 +12,20 @@ the one made nearest to each substep (``at_step``), as on the CPU.
 Preconditioners (``precond``):
   "inv32"  the factor's explicit inverse (cholesky_inverse), stored in float32 and applied as one GEMV
            (37.7 MB read on R1's 3072 unknowns: ~10 us of HBM time; a triangular solve pair is a long
-           chain of small dependent kernels on a GPU). CG itself stays float64.
+           chain of small dependent kernels on a GPU). CG itself stays float64, with the CPU's flexible
+           (Polak-Ribiere) beta. Inverse: ~2/3 n^3 flops more than the factor, once per factorisation.
   "inv64"  the same in float64.
   "chol"   the Cholesky factor itself, applied by cholesky_solve (two triangular solves).
 ``refactor_every_solve``: factorise every A (a direct solve; CG then converges in one or two iterations).
 
 A mat-vec with A uses the fixed pattern as ELLPACK (rows padded to the longest, padding pointing at a zero
 value): a gather, a product and a row sum, the same three kernels whatever the row lengths, deterministic
-(no atomics), and the same code on the CPU. CG runs in blocks of ``block`` iterations whose updates are
-masked once the residual is small enough (or on breakdown), so the host reads the state (one sync) only
-between blocks; the first read comes after as many iterations as the previous solve needed. On CUDA the
-set-up of a solve and a block are each recorded once as a CUDA graph (``cuda_graphs``); the buffers and
-graphs belong to a workspace shared by the solvers of one pattern (one rollout after another).
+(no atomics), and the same code on the CPU. CG runs in blocks of ``block`` iterations whose steps become
+zero once the residual is small enough, so the host reads the state (one sync) only between blocks; the
+first read comes after as many iterations as the previous solve needed (after one block with a fresh
+factor). On CUDA the set-up of a solve and a block are each recorded once as a CUDA graph (``cuda_graphs``;
+with ``compile`` torch.compile fuses them first); the buffers and graphs belong to a workspace shared by the
+solvers of one pattern (one rollout after another).
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ from saft.physics.cuda_graphs import Graphed, graphs_wanted
 from saft.physics.solver import SolveStats
 
 PRECONDS = ("inv32", "inv64", "chol")
+_TINY = 1e-300  # clamps CG's denominators: 0 / 0 (a zero residual) gives 0
 
 
 def ell_pattern(indptr: np.ndarray, indices: np.ndarray):
@@ -62,11 +65,14 @@ class _Work:
     (recorded as CUDA graphs on CUDA). ``owner``: the number of the factor loaded as the preconditioner.
 
     The block is written for few kernels per iteration (each is a launch, or a graph node of a few us, on a
-    GPU), and without ``out=`` arguments or views of the state (torch.compile's functionalisation mishandled
-    them: a value read back from an ``out=`` result through a view came out stale). The state is x, r, p and
-    four scalars: r.z, r.r, ``act`` (True while iterating) and ``its``. A breakdown (p.Ap <= 0 or r.z <= 0:
-    A or the factor not positive definite) stops the iteration unconverged, which the host reads as a
-    failure."""
+    GPU). Once ||r|| <= tol ||b|| the step length is multiplied by 0, so the iterations left in a block change
+    nothing (iterating on past convergence underflows to 0 / 0 within a few iterations of a fresh factor),
+    and ``its`` counts the iterations begun above the tolerance (what the CPU counts). The denominators are
+    clamped at 1e-300 so that an exactly zero residual (b = 0) stays zero. A breakdown (p.Ap <= 0 or
+    r.z <= 0: A or the factor not positive definite) blows up or stalls the residual, which the host reads as
+    a failure. No ``out=`` arguments, no views of the state, scalars as 1-element arrays: torch.compile
+    (functionalisation) lost updates of 0-dim tensors and of values read through views of ``out=`` results.
+    """
 
     def __init__(self, indptr, indices, device, precond: str, block: int, graphs: bool, compile: bool):
         f = dict(device=device, dtype=torch.float64)
@@ -83,7 +89,6 @@ class _Work:
         self.b, self.x, self.r, self.p = (torch.zeros(n, **f) for _ in range(4))
         # the scalars as 1-element arrays: torch.compile turned 0-dim CPU tensors into constants
         self.rz, self.rr, self.atol2, self.tol2, self.its = (torch.zeros(1, **f) for _ in range(5))
-        self.act = torch.zeros(1, dtype=torch.bool, device=device)
         self.tol = None  # the tolerance tol2 holds the square of
         pdt = torch.float32 if precond == "inv32" else torch.float64
         self.P = torch.eye(n, dtype=pdt, device=device)  # the preconditioner (inverse or Cholesky factor)
@@ -123,11 +128,8 @@ class _Work:
         self.r.copy_(self.b - self.spmv(self.x))
         z = self.apply_precond(self.r)
         self.p.copy_(z)
-        rz = torch.dot(self.r, z)
-        rr = torch.dot(self.r, self.r)
-        self.rz.copy_(rz)
-        self.rr.copy_(rr)
-        self.act.copy_((rr > self.atol2) & (rz > 0))
+        self.rz.copy_(torch.dot(self.r, z))
+        self.rr.copy_(torch.dot(self.r, self.r))
         self.its.zero_()
 
     def _block(self):
@@ -135,29 +137,27 @@ class _Work:
             self._iteration()
 
     def _iteration(self):
-        """One CG iteration, a no-op once ``act`` is False (converged or broken down): no host synchronisation."""
+        """One CG iteration, no host synchronisation."""
         p, r = self.p, self.r
+        above = self.rr > self.atol2  # else alpha = 0: x, r and the rest stay as they are
+        self.its.add_(above)
         Ap = self.spmv(p)
-        pAp = torch.dot(p, Ap)
-        go = (pAp > 0) & self.act
-        alpha = torch.where(go, self.rz / pAp, 0.0)
+        alpha = self.rz / torch.dot(p, Ap).clamp_min(_TINY) * above
         self.x.addcmul_(alpha, p)
         r.addcmul_(alpha, Ap, value=-1.0)
-        self.its.add_(go)
         z = self.apply_precond(r)
-        rz_new = torch.dot(r, z)
-        rr = torch.dot(r, r)
-        act = go & (rz_new > 0) & (rr > self.atol2)
-        beta = torch.where(act, rz_new / self.rz, 0.0)  # rz > 0 wherever act
+        rz = torch.dot(r, z)
+        # flexible (Polak-Ribiere) beta = z.(r - r_old) / rz_old = -alpha z.Ap / rz_old, as the CPU's CG
+        # (robust to a slightly nonlinear preconditioner: the float32 inverse rounds r)
+        beta = -alpha * torch.dot(z, Ap) / self.rz.clamp_min(_TINY)
         p.mul_(beta).add_(z)
-        self.rz.copy_(torch.where(act, rz_new, self.rz))
-        self.rr.copy_(rr)
-        self.act.copy_(act)
+        self.rz.copy_(rz)
+        self.rr.copy_(torch.dot(r, r))
 
     def state(self):
-        """(still iterating, converged, iterations): one host synchronisation."""
-        a, rr, atol2, i = torch.cat((self.act.double(), self.rr, self.atol2, self.its)).tolist()
-        return a > 0, rr <= atol2, int(i)
+        """(converged, residual finite, iterations begun above the tolerance): one host synchronisation."""
+        rr, atol2, i = torch.cat((self.rr, self.atol2, self.its)).tolist()
+        return rr <= atol2, math.isfinite(rr), int(i)
 
 
 _SERIAL = itertools.count(1)  # names every factor made, process-wide (the workspace's ``owner``)
@@ -251,6 +251,7 @@ class DenseFactorSolver:
                     F = F.to(torch.float32)
             self._serial = next(_SERIAL)
             self.F = F
+            self._last_its = 0  # a fresh factor converges in a few iterations: read early
             self._keep()
             return True
 
@@ -294,9 +295,9 @@ class DenseFactorSolver:
                 for _ in range(blocks):
                     ws.run_block()
                 done += blocks * k
-                active, converged, its = ws.state()
+                converged, finite, its = ws.state()
                 self.stats.extra["checks"] += 1
-                if not active or done >= self.max_iter:
+                if converged or not finite or done >= self.max_iter:
                     break
                 blocks = 1
             self.stats.iterations += its
