@@ -114,11 +114,13 @@ def main():
     ap.add_argument("--graphs", choices=("1", "0", "both"), default="1",
                     help="comparison mode on CUDA: record CUDA graphs (SAFT_PHYSICS_GRAPHS), or run both ways")
     ap.add_argument("--profile-frames", type=int, default=5,
-                    help="comparison mode: frames of one extra profiled run per solver (0: none)")
+                    help="comparison mode: frames of one extra profiled run of the first solver (0: none)")
+    ap.add_argument("--profile-all", action="store_true", help="comparison mode: profile every solver")
     ap.add_argument("--no-cpu-reference", action="store_true",
                     help="comparison mode: skip the CPU default's runs (no max-diff lines)")
-    ap.add_argument("--budget-s", type=float, default=4.0,
-                    help="comparison mode: a solver whose warm-up takes longer gets one timed run, not --repeats")
+    ap.add_argument("--budget-s", type=float, default=5.0,
+                    help="comparison mode: a solver whose 50-frame run would take longer (projected from two "
+                         "3-frame runs) is skipped (0: never)")
     args = ap.parse_args()
     if args.device is None and args.solver is None and args.compile == "both":
         ap.error("--compile both is for the solver comparison (--device/--solver)")

@@ -1,8 +1,9 @@
 """Solver comparison of ``bench_physics.py --device/--solver`` (issue 27): one size (default 32x32, R1's
-template), forward + backward, per solver: a warm-up run (CUDA graphs recorded, kernels loaded), then the
-median of --repeats timed runs (torch.cuda.synchronize around each), CG iterations per solve, factorisations,
-host reads per solve, the largest differences from the CPU default (numba + ReusedLUSolver) on the same input,
-and one profiled run (--profile-frames) that splits the time into phases and counts the launches and host
+template), forward + backward, per solver: two 3-frame runs (CUDA graphs recorded, kernels loaded; a solver
+projected past --budget-s is skipped), a full warm-up run, then the median of --repeats timed runs
+(torch.cuda.synchronize around each), CG iterations per solve, factorisations, host reads per solve, the
+largest differences from the CPU default (numba + ReusedLUSolver) on the same input, and for the first solver
+one profiled run (--profile-frames) that splits the time into phases and counts the launches and host
 synchronisations per substep.
 
 Machine-readable lines: physics_cpu_fwdbwd_s=, physics_cpu_tol_spread_pos= / _grad= (the CPU default at tol
@@ -88,26 +89,31 @@ def _profile(topo, frames, solver, tol, run_once, compile):
         print(f"    gpu {dev_ms(e, True):8.1f} ms  {e.count:7d}x  {e.key[:90]}")
 
 
-def _run_solver(topo, name, tag, compile, args, ref, run_once):
-    """Warm-up, timed runs, differences from the CPU reference, profile: (median s, diffs or None)."""
+def _run_solver(topo, name, tag, compile, args, ref, run_once, profile):
+    """Probe, warm-up, timed runs, differences from the CPU reference, profile: (median s, diffs or None)."""
     frames, tol, dev = args.frames, args.tol, topo.device
-    t0 = time.perf_counter()
+    kw = dict(solver=name, tol=tol, compile=compile)
     try:
-        warm = run_once(topo, frames, True, solver=name, tol=tol, keep=True, compile=compile)
+        run_once(topo, 3, True, **kw)  # records the graphs (and compiles), loads cuSOLVER
+        probe = run_once(topo, 3, True, **kw)[0] * (frames - 1) / 2
+        if args.budget_s and probe > args.budget_s:
+            print(f"{tag}: skipped, a {frames}-frame run would take ~{probe:.1f} s (> --budget-s {args.budget_s})")
+            print(f"physics_fwdbwd_s_{tag}_projected={probe:.2f}\n", flush=True)
+            return None
+        warm = run_once(topo, frames, True, keep=True, **kw)
     except Exception as exc:  # noqa: BLE001 - one broken variant must not hide the others' numbers
         print(f"{tag}: FAILED {exc!r:.300}", flush=True)
         return None
-    reps = args.repeats if time.perf_counter() - t0 <= args.budget_s else 1
-    runs = [run_once(topo, frames, True, solver=name, tol=tol, compile=compile) for _ in range(reps)]
+    runs = [run_once(topo, frames, True, **kw) for _ in range(args.repeats)]
     med = statistics.median(r[0] for r in runs)
-    print(f"{tag}: {med:.3f} s (median of {reps}; warm-up {warm[0]:.3f} s)  {_stats_line(runs[-1][2])}")
+    print(f"{tag}: {med:.3f} s (median of {args.repeats}; warm-up {warm[0]:.3f} s)  {_stats_line(runs[-1][2])}")
     print(f"physics_fwdbwd_s_{tag}={med:.3f}")
     diff = None
     if ref is not None:
         diff = _diffs(warm[3], warm[4], *ref)
         print(f"physics_{dev.type}_vs_cpu_maxdiff_{tag}={diff[0]:.3e}")
         print(f"physics_{dev.type}_vs_cpu_maxdiff_grad_{tag}={diff[1]:.3e}")
-    if args.profile_frames > 1:
+    if profile and args.profile_frames > 1:
         _profile(topo, args.profile_frames, name, tol, run_once, compile)
     print(flush=True)
     return med, diff
@@ -142,11 +148,11 @@ def compare(args, load_case, run_once):
         print(f"physics_cpu_tol_spread_grad={sg:.3e}", flush=True)
     modes = [None] if not cuda else (["1", "0"] if args.graphs == "both" else [args.graphs])
     best = None
-    for mode, compile, name in itertools.product(modes, compiles, names):
+    for k, (mode, compile, name) in enumerate(itertools.product(modes, compiles, names)):
         if mode is not None:
             os.environ[ENV_GRAPHS] = mode
         tag = name + ("_nographs" if mode == "0" else "") + ("_compiled" if compile else "")
-        res = _run_solver(topo, name, tag, compile, args, ref, run_once)
+        res = _run_solver(topo, name, tag, compile, args, ref, run_once, args.profile_all or k == 0)
         if res is not None and (best is None or res[0] < best[1]):
             best = (tag, *res)
     if best is not None:
