@@ -16,7 +16,7 @@ Default on the CPU: for float64 tensors in "projected" mode, ``StepKernels`` run
 kernels of ``saft.physics.kernels_numba`` instead (same closed forms, equal to rounding, several times
 faster than either torch path on cloth-sized meshes). On CUDA the eager torch kernels are recorded once per
 topology as CUDA graphs (``cuda_graphs``; ~90 launches forward, ~300 adjoint on R1, replayed as one each;
-``SAFT_PHYSICS_GRAPHS=0`` turns that off). Selection (``backend`` argument, else the
+"projected" mode; ``SAFT_PHYSICS_GRAPHS=0`` turns that off). Selection (``backend`` argument, else the
 ``SAFT_PHYSICS_KERNELS`` environment variable): "auto" (default: numba where it applies, unless
 torch.compile was asked for), "numba" (numba where it applies, torch otherwise) or "torch" (never numba;
 for tests and A/B). CUDA, float32 and "exact" always use torch.
@@ -123,8 +123,9 @@ class StepKernels:
         self.backend = "numba" if self.nb is not None else "torch"
         self.use_compile = (self.nb is None and want_compile and mode == "projected"
                             and not _compile_failed)
-        # CUDA: recorded as graphs (after compilation, when that was asked for)
-        self.graphs = self.nb is None and graphs_wanted(t.device)
+        # CUDA: recorded as graphs (after compilation, when that was asked for); not the "exact" mode, whose
+        # hinge adjoint runs autograd (the engine's own thread) inside
+        self.graphs = self.nb is None and mode == "projected" and graphs_wanted(t.device)
 
     def _call(self, name, fn, *args):
         global _compile_failed
