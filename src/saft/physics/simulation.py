@@ -24,8 +24,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from saft.errors import SimulationError
 from saft.physics.energy import LN10, ElementEval  # noqa: F401 (ElementEval: tests patch it here)
+from saft.physics.finite import FiniteChecks
+from saft.physics.finite import check_finite as _check
 from saft.physics.kernels import StepKernels
 from saft.physics import solver as _solver_mod
 from saft.physics.solver import CholmodPCGSolver, JacobiCGSolver, ReusedLUSolver, SolveStats, _csr
@@ -211,11 +212,6 @@ class _Sim:
         return solver.solve(data, b, guess)
 
 
-def _check(arr, what, frame, substep):
-    if not bool(torch.isfinite(arr).all()):
-        raise SimulationError(f"non-finite {what} in the cloth simulation at frame {frame}, substep {substep}")
-
-
 def _one_cpu_thread(fn):
     """Run ``fn`` with one torch intra-op thread (the caller's count is restored afterwards).
 
@@ -267,9 +263,10 @@ class _RolloutFn(torch.autograd.Function):
         if anchor is not None:
             _check(anchor, "input anchor", 0, 0)
             anchor_at = sim.anchor_positions
+        checks = FiniteChecks(x0.device)  # on a GPU read once per frame
         for k in range(N - 1):
             a = a_const if a_vert is None else a_const + a_vert[k]
-            _check(a, "external acceleration", k, 0)
+            checks.check(a, "external acceleration", k, 0)
             for s in range(ns):
                 i = k * ns + s
                 saved[i, 0] = x
@@ -296,12 +293,13 @@ class _RolloutFn(torch.autograd.Function):
                 v1 = sim.lin_solve(solver, A, b, vd.reshape(-1)).reshape(V, 3)
                 if pinned is not None:
                     v1[pinned] = vP
-                _check(v1, "velocity", k, s)
+                checks.check(v1, "velocity", k, s)
                 x = x + h * v1
                 if pinned is not None:
                     x[pinned] = tgt
                 v = v1
                 saved[i, 2] = v1
+            checks.flush()
             positions[k + 1] = x
         ctx.sim = sim
         ctx.solver = solver
@@ -339,6 +337,7 @@ class _RolloutFn(torch.autograd.Function):
         lam_guess = torch.zeros(3 * V, dtype=x0.dtype, device=x0.device)
         anchor_mass = m3 * anchor[:, None] if ctx.has_anchor else None
         g_anchor = torch.zeros(V, 3, dtype=x0.dtype, device=x0.device) if ctx.has_anchor else None
+        checks = FiniteChecks(x0.device)
         for k in range(N - 2, -1, -1):
             for s in range(ns - 1, -1, -1):
                 i = k * ns + s
@@ -357,7 +356,7 @@ class _RolloutFn(torch.autograd.Function):
                 if hasattr(solver, "at_step"):
                     solver.at_step(i, select=True)
                 lam = sim.lin_solve(solver, A, rhs, lam_guess)
-                _check(lam, "adjoint", k, s)
+                checks.check(lam, "adjoint", k, s)
                 lam_guess = lam
                 lamV = lam.view(V, 3)
                 # d/dx of lam.(b - A v1): -h (true Hessian) lam - h^2 d/dx(lam^T K(x) v1), and the
@@ -375,7 +374,8 @@ class _RolloutFn(torch.autograd.Function):
                 gB += dB
                 gS += dS
                 gv = d * mlam
-                _check(gx, "position adjoint", k, s)
+                checks.check(gx, "position adjoint", k, s)
+            checks.flush()
             gx = gx + grad_pos[k]
         ctx.A_saved = None
         ctx.solver = None  # frees the kept factors
