@@ -148,9 +148,9 @@ class _Work:
         z = self.apply_precond(r)
         rz = torch.dot(r, z)
         # flexible (Polak-Ribiere) beta = z.(r - r_old) / rz_old = -alpha z.Ap / rz_old, as the CPU's CG
-        # (robust to a slightly nonlinear preconditioner: the float32 inverse rounds r)
-        beta = -alpha * torch.dot(z, Ap) / self.rz.clamp_min(_TINY)
-        p.mul_(beta).add_(z)
+        # (robust to a slightly nonlinear preconditioner: the float32 inverse rounds r); p = z + beta p
+        mbeta = alpha * torch.dot(z, Ap) / self.rz.clamp_min(_TINY)
+        p.copy_(torch.addcmul(z, mbeta, p, value=-1.0))
         self.rz.copy_(rz)
         self.rr.copy_(torch.dot(r, r))
 
