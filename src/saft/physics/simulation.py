@@ -25,8 +25,7 @@ import numpy as np
 import torch
 
 from saft.physics.energy import LN10, ElementEval  # noqa: F401 (ElementEval: tests patch it here)
-from saft.physics.finite import FiniteChecks
-from saft.physics.finite import check_finite as _check
+from saft.physics.finite import FiniteChecks, check_finite
 from saft.physics.kernels import StepKernels
 from saft.physics import solver as _solver_mod
 from saft.physics.solver import CholmodPCGSolver, JacobiCGSolver, ReusedLUSolver, SolveStats, _csr
@@ -245,7 +244,7 @@ class _RolloutFn(torch.autograd.Function):
         N, ns, V = sim.N, sim.substeps, sim.V
         for name, val in (("log10_Y", lY), ("log10_B", lB), ("log10_S", lS), ("damping", damping),
                           ("a_const", a_const), ("x0", x0), ("v0", v0)):
-            _check(val, f"input {name}", 0, 0)
+            check_finite(val, f"input {name}", 0, 0)
         positions = torch.empty(N, V, 3, dtype=x0.dtype, device=x0.device)
         positions[0] = x0
         saved = torch.empty(max(N - 1, 0) * ns, 3, V, 3, dtype=x0.dtype, device=x0.device)
@@ -261,7 +260,7 @@ class _RolloutFn(torch.autograd.Function):
         A_saved = []
         anchor_mass = None if anchor is None else m3 * anchor.detach()[:, None]  # m w, (V, 3)
         if anchor is not None:
-            _check(anchor, "input anchor", 0, 0)
+            check_finite(anchor, "input anchor", 0, 0)
             anchor_at = sim.anchor_positions
         checks = FiniteChecks(x0.device)  # on a GPU read once per frame
         for k in range(N - 1):
