@@ -33,6 +33,23 @@ _LAUNCH = ("cudaLaunchKernel", "cudaLaunchKernelExC", "cuLaunchKernel", "cuLaunc
 _SYNC = ("cudaStreamSynchronize", "cudaDeviceSynchronize", "cudaEventSynchronize")
 
 
+def _solver_names(spec):
+    """A comma list of solver names; "all" stands for ALL; "<dense variant>:N" registers that variant with
+    refactor_after=N in simulation.DENSE_SOLVERS (this process only), e.g. dense:10."""
+    names = []
+    for name in spec.split(","):
+        if name == "all":
+            names += [n for n in ALL if n not in names]
+            continue
+        base, _, after = name.partition(":")
+        if after:
+            if base not in DENSE_SOLVERS:
+                raise SystemExit(f"--solver {name}: {base!r} is not a dense solver ({', '.join(DENSE_SOLVERS)})")
+            DENSE_SOLVERS[name] = {**DENSE_SOLVERS[base], "refactor_after": int(after)}
+        names.append(name)
+    return names
+
+
 def _diffs(pos, grads, ref_pos, ref_grads):
     """(max |pos - ref| in metres, max over parameters of max |g - g_ref| / max |g_ref|)."""
     dp = (pos - ref_pos).abs().max().item()
@@ -123,9 +140,7 @@ def _run_solver(topo, name, tag, compile, args, ref, run_once, profile):
 def compare(args, load_case, run_once):
     dev = torch.device(args.device or "cpu")
     compiles = {"env": [None], "0": [False], "1": [True], "both": [False, True]}[args.compile]
-    names = (args.solver or "auto").split(",")
-    if names == ["all"]:
-        names = list(ALL)
+    names = _solver_names(args.solver or "auto")
     frames, tol = args.frames, args.tol
     size = args.sizes.split(",")[0] if args.sizes else "32x32"
     label, verts, quads = load_case(size)
@@ -152,7 +167,8 @@ def compare(args, load_case, run_once):
     for k, (mode, compile, name) in enumerate(itertools.product(modes, compiles, names)):
         if mode is not None:
             os.environ[ENV_GRAPHS] = mode
-        tag = name + ("_nographs" if mode == "0" else "") + ("_compiled" if compile else "")
+        tag = (name.replace(":", "_after") + ("_nographs" if mode == "0" else "")
+               + ("_compiled" if compile else ""))
         res = _run_solver(topo, name, tag, compile, args, ref, run_once, args.profile_all or k == 0)
         if res is not None and (best is None or res[0] < best[1]):
             best = (tag, *res)
