@@ -98,11 +98,12 @@ def _profile(topo, frames, solver, tol, run_once, compile):
     graphs = count.get("cudaGraphLaunch", 0)
     syncs = sum(count.get(k, 0) for k in _SYNC)
     copies = count.get("cudaMemcpyAsync", 0)
-    busy = sum(dev_ms(e, True) for e in ka if getattr(e, "device_type", None) == torch.autograd.DeviceType.CUDA)
+    gpu_rows = [e for e in ka if getattr(e, "device_type", None) == torch.autograd.DeviceType.CUDA]
+    busy = sum(dev_ms(e, True) for e in gpu_rows)  # kernels and copies (graph replays' kernels included)
     print(f"    per substep: {launches / substeps:.1f} kernel launches, {graphs / substeps:.1f} graph replays, "
           f"{syncs / substeps:.1f} syncs, {copies / substeps:.1f} memcpys; GPU busy {busy:.1f} ms of "
           f"{wall * 1e3:.1f} ms wall")
-    top = sorted((e for e in ka if dev_ms(e, True) > 0), key=lambda e: -dev_ms(e, True))[:8]
+    top = sorted(gpu_rows, key=lambda e: -dev_ms(e, True))[:10]
     for e in top:
         print(f"    gpu {dev_ms(e, True):8.1f} ms  {e.count:7d}x  {e.key[:90]}")
 
