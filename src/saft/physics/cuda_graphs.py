@@ -1,6 +1,6 @@
 """CUDA graphs around the fixed-shape pieces of a substep (element kernels, blocks of CG iterations).
 
-A substep on a cloth-sized mesh is hundreds of tiny kernels (the element adjoint alone is ~300 torch ops on
+A substep on a cloth-sized mesh is hundreds of tiny kernels (the element adjoint alone is ~320 torch ops on
 R1): launched one by one from Python they cost 5-10 us each of host time, several times the GPU's own work.
 Every shape is fixed by the topology, so each piece is recorded once with ``torch.cuda.graphs`` and replayed
 as one launch. ``Graphed`` records a function of static input buffers; on any other device, or where

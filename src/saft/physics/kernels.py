@@ -14,9 +14,9 @@ trigger recompilation. Only the "projected" Hessian mode is compiled; "exact" al
 
 Default on the CPU: for float64 tensors in "projected" mode, ``StepKernels`` runs the hand-written numba
 kernels of ``saft.physics.kernels_numba`` instead (same closed forms, equal to rounding, several times
-faster than either torch path on cloth-sized meshes). On CUDA the eager torch kernels are recorded once per
-topology as CUDA graphs (``cuda_graphs``; ~90 launches forward, ~300 adjoint on R1, replayed as one each;
-"projected" mode; ``SAFT_PHYSICS_GRAPHS=0`` turns that off). Selection (``backend`` argument, else the
+faster than either torch path on cloth-sized meshes). On CUDA the torch kernels of the "projected" mode are
+recorded once per topology as CUDA graphs (``cuda_graphs``; ~110 torch ops forward, ~320 adjoint on R1, each
+replayed as one launch; ``SAFT_PHYSICS_GRAPHS=0`` turns that off). Selection (``backend`` argument, else the
 ``SAFT_PHYSICS_KERNELS`` environment variable): "auto" (default: numba where it applies, unless
 torch.compile was asked for), "numba" (numba where it applies, torch otherwise) or "torch" (never numba;
 for tests and A/B). CUDA, float32 and "exact" always use torch.
