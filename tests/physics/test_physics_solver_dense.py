@@ -66,7 +66,8 @@ def test_refactorises_once_cg_needs_more_than_refactor_after():
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(shutil.which("c++") is None and shutil.which("g++") is None, reason="torch.compile needs a C++ compiler")
+@pytest.mark.skipif(shutil.which("c++") is None and shutil.which("g++") is None,
+                    reason="torch.compile needs a C++ compiler")
 def test_compiled_cg_gives_the_eager_result():
     """compile=True (torch.compile of the set-up and the CG block, as on CUDA before the graphs are recorded):
     the same iterations and solution as eager. Inductor once lost the updates of 0-dim state tensors and of
