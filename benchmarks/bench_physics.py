@@ -110,7 +110,8 @@ def main():
     ap.add_argument("--device", default=None, help="cpu or cuda: compare solvers there (see the docstring)")
     ap.add_argument("--solver", default=None,
                     help="solver(s) to compare: names of saft.physics.simulation.SOLVERS, 'all', comma-separated; "
-                         "a dense one with ':N' refactorises after N iterations instead of 20 (dense:10)")
+                         "a dense one with ':N' refactorises after N iterations instead of 20 (dense:10), "
+                         "with ':N:M' also when its factor is more than M substeps old (dense:20:25)")
     ap.add_argument("--tol", type=float, default=1e-6, help="relative residual of every solve (comparison mode)")
     ap.add_argument("--graphs", choices=("1", "0", "both"), default="1",
                     help="comparison mode on CUDA: record CUDA graphs (SAFT_PHYSICS_GRAPHS), or run both ways")

@@ -26,26 +26,30 @@ from saft.physics import ClothTopology
 from saft.physics.cuda_graphs import ENV_GRAPHS
 from saft.physics.simulation import DENSE_SOLVERS
 
-# "all": the dense variants, then the Jacobi CG ("cg", ~12 s per 50-frame run on an H200 in issue 27: its
-# 3-frame probes give the projection and it is skipped unless --budget-s allows it)
-ALL = (*DENSE_SOLVERS, "cg")
+# "all": the dense variants, "dense" that also refactorises every 25 substeps (R1 on the CPU, 50 frames fwd+bwd:
+# 5231 CG iterations with 1 factorisation without, 4115 with 8; 3431 / 16 every 12 substeps), then the Jacobi
+# CG ("cg", ~12 s per 50-frame run on an H200 in issue 27: its 3-frame probes give the projection and it is
+# skipped unless --budget-s allows it)
+ALL = (*DENSE_SOLVERS, "dense:20:25", "cg")
 _LAUNCH = ("cudaLaunchKernel", "cudaLaunchKernelExC", "cuLaunchKernel", "cuLaunchKernelEx")
 _SYNC = ("cudaStreamSynchronize", "cudaDeviceSynchronize", "cudaEventSynchronize")
 
 
 def _solver_names(spec):
-    """A comma list of solver names; "all" stands for ALL; "<dense variant>:N" registers that variant with
-    refactor_after=N in simulation.DENSE_SOLVERS (this process only), e.g. dense:10."""
+    """A comma list of solver names; "all" stands for ALL; "<dense variant>:N[:M]" registers that variant with
+    refactor_after=N (and refactor_age=M) in simulation.DENSE_SOLVERS (this process only), e.g. dense:10,
+    dense:20:25."""
     names = []
     for name in spec.split(","):
         if name == "all":
             names += [n for n in ALL if n not in names]
             continue
-        base, _, after = name.partition(":")
-        if after:
-            if base not in DENSE_SOLVERS:
-                raise SystemExit(f"--solver {name}: {base!r} is not a dense solver ({', '.join(DENSE_SOLVERS)})")
-            DENSE_SOLVERS[name] = {**DENSE_SOLVERS[base], "refactor_after": int(after)}
+        base, *opts = name.split(":")
+        if opts:
+            if base not in DENSE_SOLVERS or len(opts) > 2:
+                raise SystemExit(f"--solver {name}: not <dense solver>:N[:M] ({', '.join(DENSE_SOLVERS)})")
+            kw = dict(zip(("refactor_after", "refactor_age"), map(int, opts)))
+            DENSE_SOLVERS[name] = {**DENSE_SOLVERS[base], **kw}
         names.append(name)
     return names
 
@@ -168,7 +172,7 @@ def compare(args, load_case, run_once):
     for k, (mode, compile, name) in enumerate(itertools.product(modes, compiles, names)):
         if mode is not None:
             os.environ[ENV_GRAPHS] = mode
-        tag = (name.replace(":", "_after") + ("_nographs" if mode == "0" else "")
+        tag = (name.replace(":", "_", 1).replace(":", "_age") + ("_nographs" if mode == "0" else "")
                + ("_compiled" if compile else ""))
         res = _run_solver(topo, name, tag, compile, args, ref, run_once, args.profile_all or k == 0)
         if res is not None and (best is None or res[0] < best[1]):

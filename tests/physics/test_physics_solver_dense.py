@@ -192,3 +192,19 @@ def test_cuda_default_is_the_graphed_dense_solver_and_matches_the_cpu():
     assert works and all(w.run_block.graph is not None and w.setup.graph is not None for w in works)
     assert any(g.graph is not None for g in K._GRAPHS.values())
 
+
+
+def test_refactor_age_refreshes_an_old_factor():
+    """refactor_age: a factor made more than that many substeps before is replaced before the solve, and the
+    adjoint pass finds the refreshed ones among the kept factors."""
+    t, A0, b, _ = grid_system(n=5)
+    s = _solver(t, refactor_age=3)
+    for i in range(10):
+        s.at_step(i)
+        s.solve(_t(A0), _t(b))
+    assert sorted(s.factors) == [0, 4, 8] and s.stats.factorizations == 3
+    s.at_step(9, select=True)
+    assert s._made_at == 8
+    s.at_step(2, select=True)  # 2 is within 3 of the factor of substep 0 or 4: no new one
+    s.solve(_t(A0), _t(b))
+    assert s.stats.factorizations == 3
