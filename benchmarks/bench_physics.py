@@ -120,7 +120,7 @@ def main():
     ap.add_argument("--profile-all", action="store_true", help="comparison mode: profile every solver")
     ap.add_argument("--no-cpu-reference", action="store_true",
                     help="comparison mode: skip the CPU default's runs (no max-diff lines)")
-    ap.add_argument("--budget-s", type=float, default=3.0,
+    ap.add_argument("--budget-s", type=float, default=2.0,
                     help="comparison mode: a solver whose 50-frame run would take longer (projected from two "
                          "3-frame runs) is skipped (0: never)")
     args = ap.parse_args()
