@@ -137,26 +137,27 @@ class _Work:
         self.its.zero_()
 
     def _block(self):
-        for _ in range(self.block):
-            self._iteration()
+        rz, rr = self.rz, self.rr
+        for _ in range(self.block):  # the scalars go back to their buffers once per block
+            rz, rr = self._iteration(rz, rr)
+        self.rz.copy_(rz)
+        self.rr.copy_(rr)
 
-    def _iteration(self):
-        """One CG iteration, no host synchronisation."""
+    def _iteration(self, rz, rr):
+        """One CG iteration, no host synchronisation: (r.z, r.r) -> their new values."""
         p, r = self.p, self.r
-        above = self.rr > self.atol2  # else alpha = 0: x, r and the rest stay as they are
+        above = rr > self.atol2  # else alpha = 0: x, r and the rest stay as they are
         self.its.add_(above)
         Ap = self.spmv(p)
-        alpha = self.rz / torch.dot(p, Ap).clamp_min(_TINY) * above
+        alpha = rz / torch.dot(p, Ap).clamp_min(_TINY) * above
         self.x.addcmul_(alpha, p)
         r.addcmul_(alpha, Ap, value=-1.0)
         z = self.apply_precond(r)
-        rz = torch.dot(r, z)
         # flexible (Polak-Ribiere) beta = z.(r - r_old) / rz_old = -alpha z.Ap / rz_old, as the CPU's CG
         # (robust to a slightly nonlinear preconditioner: the float32 inverse rounds r); p = z + beta p
-        mbeta = alpha * torch.dot(z, Ap) / self.rz.clamp_min(_TINY)
+        mbeta = alpha * torch.dot(z, Ap) / rz.clamp_min(_TINY)
         p.copy_(torch.addcmul(z, mbeta, p, value=-1.0))
-        self.rz.copy_(rz)
-        self.rr.copy_(torch.dot(r, r))
+        return torch.dot(r, z).reshape(1), torch.dot(r, r).reshape(1)
 
     def state(self):
         """(converged, residual finite, iterations begun above the tolerance): one host synchronisation."""
