@@ -41,8 +41,10 @@ def _solver_names(spec):
     dense:20:25."""
     names = []
     for name in spec.split(","):
+        if name in names:
+            continue
         if name == "all":
-            names += [n for n in ALL if n not in names]
+            names += _solver_names(",".join(n for n in ALL if n not in names))
             continue
         base, *opts = name.split(":")
         if opts:
