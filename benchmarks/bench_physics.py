@@ -7,6 +7,11 @@ Last line (machine-readable): physics_fwd_bwd_s_32x32_50f=<seconds> (median wall
 
     python benchmarks/bench_physics.py [--repeats 3] [--sizes 16x16,32x32,64x64] [--threads 1,2]
                                        [--frames 50] [--compile {0,1,env}] [--kernels {auto,numba,torch,env}]
+
+With --device or --solver: the solver comparison of issue 27 instead (bench_physics_device.py), the first
+size only (default 32x32), forward + backward, against the CPU default on the same input:
+
+    python benchmarks/bench_physics.py --device cuda --solver all [--graphs 1|0|both] [--profile-frames 5]
 """
 
 from __future__ import annotations
@@ -48,22 +53,38 @@ def load_case(name: str):
     return f"{name} (grid)", v, q
 
 
-def run_once(topo, frames, backward: bool, seed=0, compile=None, kernels=None):
-    """One rollout (and backward); returns (wall s, CPU s, solver stats)."""
-    V = topo.num_vertices
+def make_inputs(V, frames, seed=0, device="cpu", requires_grad=True):
+    """(params, loss weights w) of the benchmark rollout: loss = sum(positions * w)."""
     g = torch.Generator().manual_seed(seed)
     p = PhysicsParams.default(frames, V)
     p.a_vert = 0.5 * torch.randn(frames - 1, V, 3, generator=g, dtype=torch.float64)
     # wind-like forcing, no pins: as in the reconstruction (accelerations hold and move the cloth)
-    for t_ in p.tensors():
-        t_.requires_grad_(backward)
     w = torch.randn(frames, V, 3, generator=g, dtype=torch.float64)
+    p = PhysicsParams(*(t_.to(device).requires_grad_(requires_grad) for t_ in p.tensors()))
+    return p, w.to(device)
+
+
+def run_once(topo, frames, backward: bool, seed=0, compile=None, kernels=None, solver="auto", tol=1e-6,
+             keep=False):
+    """One rollout (and backward); returns (wall s, CPU s, solver stats), and with ``keep`` also the
+    positions and the parameters' gradients (on the CPU)."""
+    p, w = make_inputs(topo.num_vertices, frames, seed, topo.device, backward)
     stats = {}
+    cuda = topo.device.type == "cuda"
+    if cuda:
+        torch.cuda.synchronize()
     c0, t0 = time.process_time(), time.perf_counter()
-    pos = rollout(topo, topo.template, None, p, num_frames=frames, stats=stats, compile=compile, kernels=kernels)
+    pos = rollout(topo, topo.template, None, p, num_frames=frames, stats=stats, compile=compile, kernels=kernels,
+                  solver=solver, tol=tol)
     if backward:
         (pos * w).sum().backward()
-    return time.perf_counter() - t0, time.process_time() - c0, stats
+    if cuda:
+        torch.cuda.synchronize()
+    out = (time.perf_counter() - t0, time.process_time() - c0, stats)
+    if keep:
+        grads = [t_.grad.cpu() if backward else None for t_ in p.tensors()]
+        out += (pos.detach().cpu(), grads)
+    return out
 
 
 def _fmt_stats(st):
@@ -77,14 +98,38 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeats", "--runs", dest="repeats", type=int, default=3, help="runs per cell (median)")
     ap.add_argument("--frames", type=int, default=50)
-    ap.add_argument("--sizes", "--cases", dest="sizes", default="16x16,32x32,64x64",
-                    help="comma list of NxN (32x32 is the R1 template when ../shared has it)")
+    ap.add_argument("--sizes", "--cases", dest="sizes", default=None,
+                    help="comma list of NxN (32x32 is the R1 template when ../shared has it); default "
+                         "16x16,32x32,64x64, in the solver comparison 32x32")
     ap.add_argument("--threads", default="1,2", help="comma list of torch thread counts")
-    ap.add_argument("--compile", choices=("0", "1", "env"), default="env",
-                    help="torch.compile the element kernels (env: SAFT_PHYSICS_COMPILE, off by default)")
+    ap.add_argument("--compile", choices=("0", "1", "env", "both"), default="env",
+                    help="torch.compile the element kernels (env: SAFT_PHYSICS_COMPILE, off by default); in the "
+                         "solver comparison also the CG blocks, and 'both' runs each solver without, then with")
     ap.add_argument("--kernels", choices=("auto", "numba", "torch", "env"), default="env",
                     help="element kernel backend (env: SAFT_PHYSICS_KERNELS, auto by default: numba on CPU)")
+    ap.add_argument("--device", default=None, help="cpu or cuda: compare solvers there (see the docstring)")
+    ap.add_argument("--solver", default=None,
+                    help="solver(s) to compare: names of saft.physics.simulation.SOLVERS, 'all', comma-separated; "
+                         "a dense one with ':N' refactorises after N iterations instead of 20 (dense:10), "
+                         "with ':N:M' also when its factor is more than M substeps old (dense:20:25)")
+    ap.add_argument("--tol", type=float, default=1e-6, help="relative residual of every solve (comparison mode)")
+    ap.add_argument("--graphs", choices=("1", "0", "both"), default="1",
+                    help="comparison mode on CUDA: record CUDA graphs (SAFT_PHYSICS_GRAPHS), or run both ways")
+    ap.add_argument("--profile-frames", type=int, default=5,
+                    help="comparison mode: frames of one extra profiled run of the first solver (0: none)")
+    ap.add_argument("--profile-all", action="store_true", help="comparison mode: profile every solver")
+    ap.add_argument("--no-cpu-reference", action="store_true",
+                    help="comparison mode: skip the CPU default's runs (no max-diff lines)")
+    ap.add_argument("--budget-s", type=float, default=2.0,
+                    help="comparison mode: a solver whose 50-frame run would take longer (projected from two "
+                         "3-frame runs) is skipped (0: never)")
     args = ap.parse_args()
+    if args.device is None and args.solver is None and args.compile == "both":
+        ap.error("--compile both is for the solver comparison (--device/--solver)")
+    if args.device is not None or args.solver is not None:
+        from bench_physics_device import compare  # noqa: E402 (a sibling script)
+
+        return compare(args, load_case, run_once)
     compile_flag = None if args.compile == "env" else args.compile == "1"
     kern = None if args.kernels == "env" else args.kernels
     threads = [int(t) for t in args.threads.split(",")]
@@ -96,7 +141,7 @@ def main():
     print(hdr)
     print("-" * len(hdr))
     best32 = None
-    for case in args.sizes.split(","):
+    for case in (args.sizes or "16x16,32x32,64x64").split(","):
         label, verts, quads = load_case(case)
         topo = ClothTopology.from_quads(verts, quads)
         for nt in threads:

@@ -14,7 +14,9 @@ trigger recompilation. Only the "projected" Hessian mode is compiled; "exact" al
 
 Default on the CPU: for float64 tensors in "projected" mode, ``StepKernels`` runs the hand-written numba
 kernels of ``saft.physics.kernels_numba`` instead (same closed forms, equal to rounding, several times
-faster than either torch path on cloth-sized meshes). Selection (``backend`` argument, else the
+faster than either torch path on cloth-sized meshes). On CUDA the torch kernels of the "projected" mode are
+recorded once per topology as CUDA graphs (``cuda_graphs``; ~110 torch ops forward, ~320 adjoint on R1, each
+replayed as one launch; ``SAFT_PHYSICS_GRAPHS=0`` turns that off). Selection (``backend`` argument, else the
 ``SAFT_PHYSICS_KERNELS`` environment variable): "auto" (default: numba where it applies, unless
 torch.compile was asked for), "numba" (numba where it applies, torch otherwise) or "torch" (never numba;
 for tests and A/B). CUDA, float32 and "exact" always use torch.
@@ -26,8 +28,10 @@ import os
 import warnings
 
 import torch
+from torch.profiler import record_function
 
 from saft.physics import kernels_numba
+from saft.physics.cuda_graphs import Graphed, graphs_wanted
 from saft.physics.energy import ElementEval
 from saft.physics.topology import _FAST_MAP_FIELDS
 
@@ -69,6 +73,7 @@ def _step_adjoint(mode, nnz, x, lam, v1, Y, B, S, h, *geo):
 
 _compiled: dict = {}
 _compile_failed = False
+_GRAPHS: dict = {}  # (kernel, mode, topology arrays) -> Graphed, for the few topologies in use
 
 
 def compile_requested(flag: bool | None = None) -> bool:
@@ -118,9 +123,15 @@ class StepKernels:
         self.backend = "numba" if self.nb is not None else "torch"
         self.use_compile = (self.nb is None and want_compile and mode == "projected"
                             and not _compile_failed)
+        # CUDA: recorded as graphs (after compilation, when that was asked for); not the "exact" mode, whose
+        # hinge adjoint runs autograd (the engine's own thread) inside
+        self.graphs = self.nb is None and mode == "projected" and graphs_wanted(t.device)
 
     def _call(self, name, fn, *args):
         global _compile_failed
+        if self.graphs:
+            with record_function(f"saft.kernels.{name}"):  # the phases of bench_physics.py's profile
+                return self._graphed(name, fn, args)
         if self.use_compile and not _compile_failed:
             try:
                 cf = _compiled.get(name)
@@ -131,7 +142,19 @@ class StepKernels:
                 _compile_failed = True
                 warnings.warn(f"saft.physics: torch.compile of the element kernels failed ({exc!r:.200}); "
                               "running them eagerly", RuntimeWarning, stacklevel=3)
-        return fn(self.mode, self.nnz, *args, *self.geo)
+        with record_function(f"saft.kernels.{name}"):
+            return fn(self.mode, self.nnz, *args, *self.geo)
+
+    def _graphed(self, name, fn, args):
+        key = (name, self.mode, self.use_compile, *map(id, self.geo))  # the arrays stay alive with the graph
+        g = _GRAPHS.get(key)
+        if g is None:
+            if len(_GRAPHS) >= 16:
+                _GRAPHS.pop(next(iter(_GRAPHS)))
+            mode, nnz, geo = self.mode, self.nnz, self.geo
+            g = _GRAPHS[key] = Graphed(lambda *a: fn(mode, nnz, *a, *geo), args, compile=self.use_compile,
+                                       keep=geo)
+        return g(*args)
 
     def forward(self, x, Y, B, S, hh, mass_diag, diag_idx):
         """(dE/dx as (V, 3), A data (nnz,)) at positions x."""
@@ -143,7 +166,10 @@ class StepKernels:
                 g.diag_up, g.up_of, _np(mass_diag), float(Y), float(B), float(S), float(hh), g.nnz_up,
                 A.numpy())
             return torch.from_numpy(grad), A
-        return self._call("fwd", _step_forward, x, Y, B, S, hh, mass_diag, diag_idx)
+        grad, A = self._call("fwd", _step_forward, x, Y, B, S, hh, mass_diag, diag_idx)
+        # a graph's outputs are overwritten by its next replay: A may be kept for the adjoint pass (grad is used
+        # at once, as are the adjoint's outputs)
+        return grad, (A.clone() if self.graphs else A)
 
     def adjoint(self, x, lam, v1, Y, B, S, h):
         """(position-adjoint increment (V, 3), d/dY, d/dB, d/dS pieces (0-dim, times the stiffness))."""

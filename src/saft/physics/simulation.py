@@ -24,11 +24,12 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from saft.errors import SimulationError
 from saft.physics.energy import LN10, ElementEval  # noqa: F401 (ElementEval: tests patch it here)
+from saft.physics.finite import FiniteChecks, check_finite
 from saft.physics.kernels import StepKernels
 from saft.physics import solver as _solver_mod
 from saft.physics.solver import CholmodPCGSolver, JacobiCGSolver, ReusedLUSolver, SolveStats, _csr
+from saft.physics.solver_dense import DenseFactorSolver
 from saft.physics.topology import ClothTopology
 
 GRAVITY = (0.0, -9.81, 0.0)
@@ -87,11 +88,24 @@ class PhysicsParams:
         return base if self.anchor is None else base + (self.anchor,)
 
 
-def _solver_for(topology: ClothTopology, solver: str, tol: float, stats: SolveStats):
+# solver name -> DenseFactorSolver options (solver_dense): the reused dense factor's variants
+DENSE_SOLVERS = {
+    "dense": dict(precond="inv32"),  # explicit inverse in float32, one GEMV per application
+    "dense64": dict(precond="inv64"),
+    "densechol": dict(precond="chol"),  # the Cholesky factor, two triangular solves per application
+    "direct": dict(precond="chol", refactor_every_solve=True),  # a fresh factor every solve
+}
+SOLVERS = ("auto", "lu", "cholmod", "cg", *DENSE_SOLVERS)
+
+
+def _solver_for(topology: ClothTopology, solver: str, tol: float, stats: SolveStats, compile: bool = False):
     if solver == "auto":
         # never depends on what is importable: CHOLMOD (opt-in) gives different numbers within the tolerance,
-        # and reconstructions are sensitive to that noise
-        solver = "cg" if topology.device.type != "cpu" else "lu"
+        # and reconstructions are sensitive to that noise. Other devices: the reused dense factor (solver_dense)
+        solver = "dense" if topology.device.type != "cpu" else "lu"
+    if solver in DENSE_SOLVERS:
+        return DenseFactorSolver(topology.csr_indptr, topology.csr_indices, topology.device, tol=tol, stats=stats,
+                                 compile=compile, **DENSE_SOLVERS[solver])
     if solver == "cholmod":
         if not _solver_mod.HAVE_CHOLMOD:
             raise ValueError("solver='cholmod' needs scikit-sparse (sksparse.cholmod), which is not importable")
@@ -103,7 +117,7 @@ def _solver_for(topology: ClothTopology, solver: str, tol: float, stats: SolveSt
         crow = torch.as_tensor(topology.csr_indptr, device=dev, dtype=torch.int64)
         col = torch.as_tensor(topology.csr_indices, device=dev, dtype=torch.int64)
         return JacobiCGSolver(crow, col, topology.diag_idx, tol=tol, stats=stats)
-    raise ValueError(f"solver must be 'auto', 'lu', 'cholmod' or 'cg', got {solver!r}")
+    raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
 
 
 class _Sim:
@@ -177,7 +191,7 @@ class _Sim:
         return K, A
 
     def new_solver(self):
-        return _solver_for(self.t, self.solver_kind, self.tol, self.stats)
+        return _solver_for(self.t, self.solver_kind, self.tol, self.stats, self.kernels.use_compile)
 
     def spmv(self, data, vec):
         t = self.t
@@ -195,11 +209,6 @@ class _Sim:
         if self.use_numpy:
             return torch.from_numpy(solver.solve(data.numpy(), b.numpy(), guess.numpy()))
         return solver.solve(data, b, guess)
-
-
-def _check(arr, what, frame, substep):
-    if not bool(torch.isfinite(arr).all()):
-        raise SimulationError(f"non-finite {what} in the cloth simulation at frame {frame}, substep {substep}")
 
 
 def _one_cpu_thread(fn):
@@ -235,7 +244,7 @@ class _RolloutFn(torch.autograd.Function):
         N, ns, V = sim.N, sim.substeps, sim.V
         for name, val in (("log10_Y", lY), ("log10_B", lB), ("log10_S", lS), ("damping", damping),
                           ("a_const", a_const), ("x0", x0), ("v0", v0)):
-            _check(val, f"input {name}", 0, 0)
+            check_finite(val, f"input {name}", 0, 0)
         positions = torch.empty(N, V, 3, dtype=x0.dtype, device=x0.device)
         positions[0] = x0
         saved = torch.empty(max(N - 1, 0) * ns, 3, V, 3, dtype=x0.dtype, device=x0.device)
@@ -251,11 +260,12 @@ class _RolloutFn(torch.autograd.Function):
         A_saved = []
         anchor_mass = None if anchor is None else m3 * anchor.detach()[:, None]  # m w, (V, 3)
         if anchor is not None:
-            _check(anchor, "input anchor", 0, 0)
+            check_finite(anchor, "input anchor", 0, 0)
             anchor_at = sim.anchor_positions
+        checks = FiniteChecks(x0.device)  # on a GPU read once per frame
         for k in range(N - 1):
             a = a_const if a_vert is None else a_const + a_vert[k]
-            _check(a, "external acceleration", k, 0)
+            checks.check(a, "external acceleration", k, 0)
             for s in range(ns):
                 i = k * ns + s
                 saved[i, 0] = x
@@ -282,12 +292,13 @@ class _RolloutFn(torch.autograd.Function):
                 v1 = sim.lin_solve(solver, A, b, vd.reshape(-1)).reshape(V, 3)
                 if pinned is not None:
                     v1[pinned] = vP
-                _check(v1, "velocity", k, s)
+                checks.check(v1, "velocity", k, s)
                 x = x + h * v1
                 if pinned is not None:
                     x[pinned] = tgt
                 v = v1
                 saved[i, 2] = v1
+            checks.flush()
             positions[k + 1] = x
         ctx.sim = sim
         ctx.solver = solver
@@ -325,6 +336,7 @@ class _RolloutFn(torch.autograd.Function):
         lam_guess = torch.zeros(3 * V, dtype=x0.dtype, device=x0.device)
         anchor_mass = m3 * anchor[:, None] if ctx.has_anchor else None
         g_anchor = torch.zeros(V, 3, dtype=x0.dtype, device=x0.device) if ctx.has_anchor else None
+        checks = FiniteChecks(x0.device)
         for k in range(N - 2, -1, -1):
             for s in range(ns - 1, -1, -1):
                 i = k * ns + s
@@ -343,7 +355,7 @@ class _RolloutFn(torch.autograd.Function):
                 if hasattr(solver, "at_step"):
                     solver.at_step(i, select=True)
                 lam = sim.lin_solve(solver, A, rhs, lam_guess)
-                _check(lam, "adjoint", k, s)
+                checks.check(lam, "adjoint", k, s)
                 lam_guess = lam
                 lamV = lam.view(V, 3)
                 # d/dx of lam.(b - A v1): -h (true Hessian) lam - h^2 d/dx(lam^T K(x) v1), and the
@@ -361,7 +373,8 @@ class _RolloutFn(torch.autograd.Function):
                 gB += dB
                 gS += dS
                 gv = d * mlam
-                _check(gx, "position adjoint", k, s)
+                checks.check(gx, "position adjoint", k, s)
+            checks.flush()
             gx = gx + grad_pos[k]
         ctx.A_saved = None
         ctx.solver = None  # frees the kept factors
@@ -412,9 +425,12 @@ def rollout(
     pinned: vertex indices held exactly; at x0 (pinned_positions None) or at ``pinned_positions``
     (num_frames, P, 3), linearly interpolated within a frame's substeps (targets get no gradient).
     hessian: "projected" (PSD element Hessians, default) or "exact" (true Hessian, may be indefinite).
-    solver: "auto" ("lu" on CPU, whatever is installed; Jacobi PCG on other devices), "lu" (CG preconditioned
+    solver: "auto" ("lu" on CPU, whatever is installed; "dense" on other devices), "lu" (CG preconditioned
     by a reused incomplete LU, SuperLU), "cholmod" (opt-in: CG preconditioned by a CHOLMOD Cholesky factor,
-    needs scikit-sparse; non-SPD falls back to LU) or "cg".
+    needs scikit-sparse; non-SPD falls back to LU), "cg" (Jacobi-preconditioned CG in torch), or, in torch on
+    any device, CG preconditioned by a reused dense Cholesky factor (solver_dense): "dense" (its inverse in
+    float32), "dense64" (the inverse in float64), "densechol" (the factor's triangular solves) or "direct"
+    (a fresh factor every solve).
     tol: relative residual of every linear solve. stats: if a dict, receives solver counters (forward;
     the backward's are added as bwd_* when it runs).
     compile: torch.compile the per-substep element kernels (None: the SAFT_PHYSICS_COMPILE environment
