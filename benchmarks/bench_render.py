@@ -5,7 +5,7 @@ Gradients flow to the vertex positions and to the texture. Resolutions: 700×800
 CPU time (time.process_time: the honest number on a shared, loaded machine, where wall time also counts
 waiting for a core). Prints a table of medians of --runs timed steps after warm-up; the last line is
 machine-readable: render_fwd_bwd_ms_350x400=<ms>, the median WALL time at 350×400 for the thread count
-that is fastest there, after render_fwd_bwd_ms_700x800_<backend>=<ms> at that thread count. On CUDA the
+that is fastest there, after render_fwd_bwd_ms_<resolution>_<device>_<backend>=<ms> at that thread count. On CUDA the
 step ends with torch.cuda.synchronize, so wall time is the GPU's time; use --threads 1 there.
 
     python benchmarks/bench_render.py [--runs 15] [--threads 1,2] [--backend torch] [--device cpu] [--profile]
@@ -111,7 +111,8 @@ def main(argv=None) -> int:
             bench(half, mesh, tex, R, device, 5)
         print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=20))
     print(f"best thread count at 350x400: {best}")
-    print(f"render_fwd_bwd_ms_700x800_{R.name}={wall_full[best]:.2f}")
+    print(f"render_fwd_bwd_ms_700x800_{device.type}_{R.name}={wall_full[best]:.2f}")
+    print(f"render_fwd_bwd_ms_350x400_{device.type}_{R.name}={wall_half[best]:.2f}")
     print(f"render_fwd_bwd_ms_350x400={wall_half[best]:.1f}")
     return 0
 

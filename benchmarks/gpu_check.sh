@@ -1,13 +1,17 @@
 #!/usr/bin/env bash
-# The GPU check of issue 27, in one go (about 6 minutes on one H100/H200):
-#   1. nvdiffrast: its plugin built (first use) and a test triangle rasterized
-#   2. `saft info`: where `--device auto` puts physics, renders and appearance
-#   3. pytest -m cuda (the GPU-only tests, nvdiffrast's included)
-#   4. the physics benchmark on CUDA (32x32, 50 frames, forward + backward), CPU beside it
-#   5. the render benchmark at 700x800, PyTorch and nvdiffrast backends
-#   6. R1, texture and shape phases, --device auto: wall time and mean CD2
+# The GPU check of issue 27, in one go (about 7 minutes on one H100/H200):
+#   nvdiffrast  its plugin built (first use) and a test triangle rasterized
+#   info        `saft info`: where `--device auto` puts physics, renders and appearance
+#   pytest      pytest -m cuda (the GPU-only tests, nvdiffrast's included)
+#   physics     the solver comparison on CUDA (32x32, 50 frames, forward + backward), the CPU default beside it
+#   render      the render benchmark at 700x800 and 350x400: PyTorch and nvdiffrast on CUDA, PyTorch on the CPU
+#   r1          R1, texture and shape phases, --device auto: wall time and mean CD2. Where the physics step
+#               measured the CUDA solver faster than the CPU's, R1 runs with SAFT_PHYSICS_DEVICE=cuda (what
+#               auto does once saft.device.PHYSICS_ON_CUDA_WINS is set) and says so.
 # Then a table, and one line per number (name=value). Each step has its own time limit, so a hung step
-# costs its limit, not the check. On the lent machine of this workplace (see ../shared/gpu/stage.sh):
+# costs its limit, not the check. Choose steps with SAFT_GPU_CHECK_STEPS="physics r1" and the tests with
+# SAFT_GPU_CHECK_TESTS="tests/physics" (default: all of both). On the lent machine of this workplace
+# (see ../shared/gpu/stage.sh):
 #   bash .gpu/run.sh bash benchmarks/gpu_check.sh
 # Logs go to $OUT (the lent machine's folder that comes back) or /tmp/saft-gpu-check.
 set -u
@@ -32,20 +36,31 @@ step() {   # step NAME LIMIT_S COMMAND...: runs it, keeps its log and its name=v
   echo "${name}_s=$dt"
 }
 
-step nvdiffrast 300 $py -c "
+steps=" ${SAFT_GPU_CHECK_STEPS:-nvdiffrast info pytest physics render r1} "
+want() { [[ "$steps" == *" $1 "* ]]; }
+
+want nvdiffrast && step nvdiffrast 300 $py -c "
 import time; t = time.perf_counter()
 from saft.render.nvdiffrast_backend import nvdiffrast_status
 ok, why = nvdiffrast_status()
 print('nvdiffrast_ok=%d' % ok, why)
 print('nvdiffrast_first_use_s=%.1f' % (time.perf_counter() - t))
 import sys; sys.exit(0 if ok else 1)"
-step info 120 $py -m saft info
-step pytest 300 $py -m pytest -q -m cuda -p no:cacheprovider tests
-step physics 240 $py benchmarks/bench_physics.py --device cuda --sizes 32x32 --frames 50 --threads 1 --repeats 3 \
-  ${SAFT_PHYSICS_ARGS:-}
-step render 180 bash -c "$py benchmarks/bench_render.py --device cuda --backend torch --threads 1 --runs 20 && \
-                         $py benchmarks/bench_render.py --device cuda --backend nvdiffrast --threads 1 --runs 20"
-step r1 420 $py benchmarks/bench_r1.py --device auto --out "$out/r1"
+want info && step info 120 $py -m saft info
+want pytest && step pytest 300 $py -m pytest -q -m cuda -p no:cacheprovider ${SAFT_GPU_CHECK_TESTS:-tests}
+if want physics; then
+  step physics 240 $py benchmarks/bench_physics.py --device cuda --solver all --budget-s 1.5
+  gpu_s=$(grep -h '^physics_fwdbwd_s=' "$out/physics.log" | cut -d= -f2)
+  cpu_s=$(grep -h '^physics_cpu_fwdbwd_s=' "$out/physics.log" | cut -d= -f2)
+  if [ -n "$gpu_s" ] && [ -n "$cpu_s" ] && $py -c "import sys; sys.exit(0 if $gpu_s < $cpu_s else 1)"; then
+    export SAFT_PHYSICS_DEVICE=cuda
+  fi
+  echo "physics: CUDA ${gpu_s:-?} s, CPU ${cpu_s:-?} s; R1 physics device: ${SAFT_PHYSICS_DEVICE:-as planned}"
+fi
+want render && step render 180 bash -c "$py benchmarks/bench_render.py --device cuda --backend nvdiffrast --threads 1 --runs 20 && \
+                         $py benchmarks/bench_render.py --device cuda --backend torch --threads 1 --runs 20 && \
+                         $py benchmarks/bench_render.py --device cpu --backend torch --threads 8 --runs 5"
+want r1 && step r1 420 $py benchmarks/bench_r1.py --device auto --out "$out/r1"
 
 echo
 echo "=== summary"

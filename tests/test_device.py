@@ -49,3 +49,13 @@ def test_appearance_profile_follows_the_appearance_device(monkeypatch):
     monkeypatch.setattr(D, "_mitsuba_cuda_ok", lambda: True)
     assert D.appearance_device("auto").type == "cuda"
     assert load_saft_config(None, ['run.device="auto"']).appearance.profile == "paper"
+
+
+def test_physics_device_override_for_ab_runs(monkeypatch):
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    for forced in ("cpu", "cuda"):
+        monkeypatch.setenv(D.ENV_PHYSICS_DEVICE, forced)
+        plan = D.plan_devices("auto", nvdiffrast_ok=True, mitsuba_cuda_ok=True)
+        assert plan.physics.type == forced and D.ENV_PHYSICS_DEVICE in plan.why["physics"]
+    monkeypatch.setenv(D.ENV_PHYSICS_DEVICE, "cuda")
+    assert D.plan_devices("cpu").physics.type == "cpu"   # only auto's choice is overridden

@@ -26,6 +26,8 @@ from saft.render.nvdiffrast_backend import nvdiffrast_status
 # (measured on an H200, BENCHMARKS.md "GPU": Jacobi CG 2.37 s for 10 frames against 1.17 s for 50 on
 # the CPU), so `auto` keeps the physics on the CPU until a CUDA solver is measured faster.
 PHYSICS_ON_CUDA_WINS = False
+# For A/B runs on a GPU machine (benchmarks/gpu_check.sh): "cpu" or "cuda" overrides auto's physics device.
+ENV_PHYSICS_DEVICE = "SAFT_PHYSICS_DEVICE"
 
 
 def resolve_device(name: str) -> torch.device:
@@ -76,9 +78,12 @@ def plan_devices(name: str, *, appearance: bool = True, nvdiffrast_ok: bool | No
             "render": f"asked for (--device cuda); {raster}",
             "appearance": "asked for (--device cuda); Mitsuba cuda_ad_rgb"
                           + ("" if mitsuba_cuda_ok else " (not usable here: the phase will say why)")})
-    physics = render if PHYSICS_ON_CUDA_WINS else cpu
+    forced = os.environ.get(ENV_PHYSICS_DEVICE, "")
+    on_cuda = forced == "cuda" if forced in ("cpu", "cuda") else PHYSICS_ON_CUDA_WINS
+    physics = render if on_cuda else cpu
     why = {
-        "physics": ("CUDA: its solver was measured faster than the CPU's" if PHYSICS_ON_CUDA_WINS else
+        "physics": (f"{physics.type.upper()}: set by {ENV_PHYSICS_DEVICE}" if forced in ("cpu", "cuda") else
+                    "CUDA (dense-factor CG): measured faster than the CPU's" if on_cuda else
                     "CPU (numba kernels, ILU-preconditioned CG): measured faster than the CUDA solver"),
         "render": f"CUDA, {raster}: measured faster than the CPU rasterizer",
         "appearance": ("CUDA, Mitsuba cuda_ad_rgb" if mitsuba_cuda_ok else
