@@ -24,8 +24,10 @@ def test_gpu_machine_auto_keeps_each_part_where_it_is_fastest(monkeypatch):
     monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
     plan = D.plan_devices("auto", nvdiffrast_ok=True, mitsuba_cuda_ok=True)
     assert plan.render.type == "cuda" and plan.appearance.type == "cuda"
-    assert plan.physics.type == ("cuda" if D.PHYSICS_ON_CUDA_WINS else "cpu")
-    assert "nvdiffrast" in plan.why["render"] and "measured" in plan.why["physics"]
+    assert plan.physics.type == "cuda" and "dense" in plan.why["physics"]
+    assert "nvdiffrast" in plan.why["render"]
+    big = D.plan_devices("auto", vertices=D.PHYSICS_CUDA_MAX_VERTICES + 1, nvdiffrast_ok=True, mitsuba_cuda_ok=True)
+    assert big.physics.type == "cpu" and big.render.type == "cuda"
     no_mitsuba = D.plan_devices("auto", nvdiffrast_ok=False, mitsuba_cuda_ok=False)
     assert no_mitsuba.render.type == "cuda" and no_mitsuba.appearance.type == "cpu"
     assert "PyTorch rasterizer" in no_mitsuba.why["render"] and "llvm_ad_rgb" in no_mitsuba.why["appearance"]

@@ -22,10 +22,12 @@ from saft.appearance.mitsuba_backend import ensure_backend
 from saft.errors import BackendUnavailableError, SaftInputError
 from saft.render.nvdiffrast_backend import nvdiffrast_status
 
-# The CUDA physics path that `auto` would use is slower than the CPU's numba path on R1's template
-# (measured on an H200, BENCHMARKS.md "GPU": Jacobi CG 2.37 s for 10 frames against 1.17 s for 50 on
-# the CPU), so `auto` keeps the physics on the CPU until a CUDA solver is measured faster.
-PHYSICS_ON_CUDA_WINS = False
+# The cloth simulation on CUDA (dense-factor CG, saft.physics.solver_dense) against the CPU's (numba kernels,
+# ILU-preconditioned CG), R1's 32x32 template, 50 frames forward + backward, on one H200 machine
+# (BENCHMARKS.md, "GPU"): 0.61 s against 1.32 s. Its cost grows with the dense factor (n^2 memory, n^3 per
+# factorisation), so `auto` puts the physics on CUDA up to this many vertices (64x64: a 600 MB float32
+# inverse, a factorisation about 64 times R1's 6 ms), and on the CPU above.
+PHYSICS_CUDA_MAX_VERTICES = 4096
 # For A/B runs on a GPU machine (benchmarks/gpu_check.sh): "cpu" or "cuda" overrides auto's physics device.
 ENV_PHYSICS_DEVICE = "SAFT_PHYSICS_DEVICE"
 
@@ -53,10 +55,11 @@ class DevicePlan:
                 for part in ("physics", "render", "appearance")]
 
 
-def plan_devices(name: str, *, appearance: bool = True, nvdiffrast_ok: bool | None = None,
-                 mitsuba_cuda_ok: bool | None = None) -> DevicePlan:
+def plan_devices(name: str, *, vertices: int | None = None, appearance: bool = True,
+                 nvdiffrast_ok: bool | None = None, mitsuba_cuda_ok: bool | None = None) -> DevicePlan:
     """Per-part devices for run.device = `name` ('auto', 'cpu' or 'cuda').
 
+    vertices: the template's vertex count (None: a template of R1's size), for the physics' device.
     appearance: whether the run has an appearance phase (else Mitsuba is not probed and the part stays on
     the CPU). nvdiffrast_ok / mitsuba_cuda_ok: whether those backends work on this machine's GPU; None =
     probe them (only when a CUDA device is there: nvdiffrast rasterizes a triangle, Mitsuba renders in a
@@ -79,12 +82,16 @@ def plan_devices(name: str, *, appearance: bool = True, nvdiffrast_ok: bool | No
             "appearance": "asked for (--device cuda); Mitsuba cuda_ad_rgb"
                           + ("" if mitsuba_cuda_ok else " (not usable here: the phase will say why)")})
     forced = os.environ.get(ENV_PHYSICS_DEVICE, "")
-    on_cuda = forced == "cuda" if forced in ("cpu", "cuda") else PHYSICS_ON_CUDA_WINS
+    small = (vertices or 1024) <= PHYSICS_CUDA_MAX_VERTICES
+    on_cuda = forced == "cuda" if forced in ("cpu", "cuda") else small
     physics = render if on_cuda else cpu
+    size = f"{vertices} vertices" if vertices else "templates"
     why = {
         "physics": (f"{physics.type.upper()}: set by {ENV_PHYSICS_DEVICE}" if forced in ("cpu", "cuda") else
-                    "CUDA (dense-factor CG): measured faster than the CPU's" if on_cuda else
-                    "CPU (numba kernels, ILU-preconditioned CG): measured faster than the CUDA solver"),
+                    f"CUDA, dense-factor CG: faster than the CPU's for {size} up to {PHYSICS_CUDA_MAX_VERTICES}"
+                    if on_cuda else
+                    f"CPU, numba + ILU-preconditioned CG: the dense CUDA solver is for up to "
+                    f"{PHYSICS_CUDA_MAX_VERTICES} vertices"),
         "render": f"CUDA, {raster}: measured faster than the CPU rasterizer",
         "appearance": ("CUDA, Mitsuba cuda_ad_rgb" if mitsuba_cuda_ok else
                        "CPU, Mitsuba llvm_ad_rgb: Mitsuba's CUDA variant is not usable here" if appearance else
@@ -121,4 +128,4 @@ def cpu_threads(requested: int) -> int:
     return 1 if cores <= 2 else min(8, cores // 2)
 
 
-__all__ = ["DevicePlan", "appearance_device", "PHYSICS_ON_CUDA_WINS", "cpu_threads", "plan_devices", "resolve_device"]
+__all__ = ["DevicePlan", "appearance_device", "PHYSICS_CUDA_MAX_VERTICES", "cpu_threads", "plan_devices", "resolve_device"]

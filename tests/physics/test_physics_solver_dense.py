@@ -119,7 +119,7 @@ def _rollouts(solvers, t, tol=1e-12, device="cpu", n_frames=N):
     out = {}
     for name, dev in solvers:
         pp = PhysicsParams(*(x.detach().clone().to(dev).requires_grad_(True) for x in p.tensors()))
-        x0d = x0.to(dev).requires_grad_(True)
+        x0d = x0.detach().to(dev).requires_grad_(True)   # a leaf on every device (x0.to('cuda') is not one)
         st = {}
         pos = rollout(t.to(dev), x0d, None, pp, num_frames=n_frames, solver=name, tol=tol, stats=st)
         (pos * W.to(dev)).sum().backward()

@@ -1,7 +1,10 @@
 """nvdiffrast vs the PyTorch backend on the same scene. Skipped without CUDA or without the nvdiffrast package;
 where both are there, nvdiffrast must work (a broken plugin build or import fails here, loudly).
 
-Stated tolerance: identical coverage except on pixels whose centre lies within 1e-3 px of an edge;
+Stated tolerance: the same triangle on every pixel except near edges: nvdiffrast's CUDA rasterizer snaps
+vertices to 1/16 pixel (CudaRaster's CR_SUBPIXEL_LOG2 = 4), which alone changes the triangle of 0.30 % of
+this scene's pixels in saft's rasterizer (measured here on the CPU), and nvdiffrast differed from it on
+0.39 % (H200, 2026-11-26); at most twice the snap's share is allowed, each such pixel next to an edge;
 barycentrics and z/w within 1e-4; rgb within 0.02 (mean 0.002) — the mip level formulas differ slightly —
 mask within 0.05 on silhouette pixels (mean 0.002), depth within 1e-4 m; gradients w.r.t. vertices with
 cosine similarity ≥ 0.95.
@@ -23,17 +26,22 @@ from saft.render.nvdiffrast_backend import nvdiffrast_status
 sys.path.insert(0, str(Path(__file__).parent))
 from _render_helpers import grid, pinhole, smooth_texture  # noqa: E402
 
-pytestmark = [pytest.mark.cuda,
-              pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device"),
-              pytest.mark.skipif(importlib.util.find_spec("nvdiffrast") is None,
-                                 reason="needs nvdiffrast (saft[cuda]: the diffrp-nvdiffrast package)")]
+def needs_nvdiffrast(test):
+    for mark in (pytest.mark.cuda,
+                 pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device"),
+                 pytest.mark.skipif(importlib.util.find_spec("nvdiffrast") is None,
+                                    reason="needs nvdiffrast (saft[cuda]: the diffrp-nvdiffrast package)")):
+        test = mark(test)
+    return test
 
 
+@needs_nvdiffrast
 def test_nvdiffrast_rasterizes_on_this_gpu():
     ok, why = nvdiffrast_status()
     assert ok, f"nvdiffrast is installed but does not work: {why}"
 
 
+@needs_nvdiffrast
 def test_nvdiffrast_and_torch_backends_agree():
     dev = torch.device("cuda")
     cam = pinhole(96, 80, 100.0)
@@ -50,7 +58,16 @@ def test_nvdiffrast_and_torch_backends_agree():
         grads.append(v.grad)
     a, b = outs
     same = a.rast[..., 3] == b.rast[..., 3]
-    assert same.float().mean() > 0.998
+    snap_share = _snap_share(verts, tris, cam)
+    assert 0.0 < snap_share < 0.01
+    assert same.float().mean() >= 1.0 - 2.0 * snap_share, (same.float().mean(), snap_share)
+    ids = a.rast[0, ..., 3]
+    near_edge = torch.zeros_like(ids, dtype=torch.bool)   # a 4-neighbour of another triangle (or none)
+    near_edge[1:] |= ids[1:] != ids[:-1]
+    near_edge[:-1] |= ids[:-1] != ids[1:]
+    near_edge[:, 1:] |= ids[:, 1:] != ids[:, :-1]
+    near_edge[:, :-1] |= ids[:, :-1] != ids[:, 1:]
+    assert near_edge[~same[0]].all()
     cov = same & (a.rast[..., 3] > 0)
     assert (a.rast[..., :3][cov] - b.rast[..., :3][cov]).abs().max() < 1e-4
     assert (a.depth[cov] - b.depth[cov]).abs().max() < 1e-4
@@ -58,3 +75,27 @@ def test_nvdiffrast_and_torch_backends_agree():
     assert (a.mask - b.mask).abs().max() < 0.05 and (a.mask - b.mask).abs().mean() < 2e-3
     g1, g2 = grads[0].reshape(-1), grads[1].reshape(-1)
     assert torch.dot(g1, g2) / (g1.norm() * g2.norm()) > 0.95
+
+
+def _snap_share(verts, tris, cam) -> float:
+    """The share of pixels whose triangle changes in saft's rasterizer (CPU) when the vertices are snapped to
+    1/16 pixel as nvdiffrast's CUDA rasterizer does."""
+    from saft.render.clip import camera_to_clip
+
+    R = get_rasterizer("torch", "cpu")
+    pos = camera_to_clip(torch.tensor(verts, dtype=torch.float32), cam).reshape(1, -1, 4)
+    size = torch.tensor([cam.width, cam.height], dtype=torch.float32)
+    pix = (pos[..., :2] / pos[..., 3:] + 1) / 2 * size
+    snapped = pos.clone()
+    snapped[..., :2] = (torch.round(pix * 16) / 16 / size * 2 - 1) * pos[..., 3:]
+    tri = torch.as_tensor(tris, dtype=torch.int32)
+    ids = [R.rasterize(p, tri, (cam.height, cam.width))[..., 3] for p in (pos, snapped)]
+    return float((ids[0] != ids[1]).float().mean())
+
+
+def test_snap_share_is_what_the_tolerance_says():
+    """The CPU half of the tolerance above, checked on every machine."""
+    cam = pinhole(96, 80, 100.0)
+    verts, tris, _ = grid(9, -0.35, 0.3, -0.25, 0.3, 1.0)
+    verts[:, 2] += 0.15 * np.sin(6 * verts[:, 0]) + 0.1 * verts[:, 1]
+    assert 0.002 < _snap_share(verts, tris, cam) < 0.004
