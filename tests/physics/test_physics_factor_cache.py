@@ -82,3 +82,16 @@ def test_a_restored_cache_decides_as_the_original():
     xb, gb, sb = _run(*_case(1.02), copy)
     assert torch.equal(xa, xb) and torch.equal(ga, gb)
     assert sa == sb
+
+
+def test_over_its_budget_the_cache_thins_out_and_keeps_its_byte_count():
+    t, p, top = _case()
+    full = FactorCache()
+    _run(t, p, top, full)
+    one = max(FactorCache.entry_nbytes(e[2]) for e in full.entries.values())
+    small = FactorCache(budget_bytes=3 * one)
+    x_small, _, _ = _run(*_case(), small)
+    assert 0 < len(small) <= 3 and small.nbytes <= small.budget_bytes
+    assert small.nbytes == sum(FactorCache.entry_nbytes(e[2]) for e in small.entries.values())
+    x_ref, _, _ = _run(*_case())
+    np.testing.assert_allclose(x_small.numpy(), x_ref.numpy(), rtol=0, atol=5e-8)

@@ -25,9 +25,13 @@ class FactorCache:
     The entries have the layout of ``ReusedLUSolver.factors`` (lu, lu_f32, pre) with lu = None; insertion
     order is kept (it breaks ties between equally near factors) and so is the byte count of the budget."""
 
-    def __init__(self):
+    def __init__(self, budget_bytes: int = 128 * 2**20):
         self.entries: dict[int, tuple] = {}
         self.nbytes = 0
+        # it is written with every checkpoint (every 20 s by default): over this, every other factor goes
+        # (a 25 x 25 cloth's factor is ~0.6 MB: the 32-frame benchmark scenes' checkpoints grew from 5 to
+        # 78 MB, under this budget, so the measured runs never thinned)
+        self.budget_bytes = budget_bytes
 
     def __len__(self) -> int:
         return len(self.entries)

@@ -144,10 +144,10 @@ class ReusedLUSolver:
         nbytes = cache.entry_nbytes(self.pre)
         if key in cache.entries:
             cache.nbytes -= cache.entry_nbytes(cache.entries.pop(key)[2])
-        if cache.nbytes + nbytes > self.keep_factors_bytes:
+        if cache.nbytes + nbytes > cache.budget_bytes:
             for k in sorted(cache.entries)[1::2]:  # over budget: thin out, keeping the spread over time
                 cache.nbytes -= cache.entry_nbytes(cache.entries.pop(k)[2])
-            if cache.nbytes + nbytes > self.keep_factors_bytes:
+            if cache.nbytes + nbytes > cache.budget_bytes:
                 return
         cache.entries[key] = (None, self.lu_f32, self.pre)
         cache.nbytes += nbytes

@@ -24,8 +24,10 @@ Scenarios (positions in metres; the camera looks at the cloth from +z):
 * ``gust_side``: hanging from its top edge, a gust from the side and behind arrives late (0.45 s) and turns
   and lifts the free bottom-right corner; 30 fps.
 
-Each is written as ``<scenario>_<variant>_pinned`` (held template vertices in scene.json) and
-``..._unpinned`` (the paper's setting); the kinematic grabbed corner is never listed (it moves).
+Each simulation is written as ``<scenario>_<simulator>_pinned`` (held template vertices in scene.json) and
+``..._unpinned`` (the paper's setting), both with the same video; the kinematic grabbed corner is never
+listed (it moves). Corners are held by clips of 3 cm (every vertex within ``Scenario.clip``), not by one
+vertex, whose point load stretched the membrane beside it 3×.
 """
 
 from __future__ import annotations
