@@ -22,13 +22,15 @@ Public API
 
 ``rollout(topology, x0, v0=None, params=None, *, num_frames, substeps=4, frame_dt=0.02, pinned=None,
           pinned_positions=None, hessian="projected", solver="auto", tol=1e-6, stats=None,
-          anchor_positions=None)``
+          anchor_positions=None, factor_cache=None, first_step=0)``
     -> positions (num_frames, V, 3), positions[0] = x0. Linearised backward Euler
     (M + h^2 K) v1 = M d v + h (f + M a_ext), x1 = x + h v1. Gradients (one custom adjoint backward, no
     unrolled solver) reach x0, v0, log10 Y/B/S, damping, a_const, a_vert, anchor (the anchors pull towards
     anchor_positions, default x0, which get no gradient). Pinned vertices stay exactly at
     x0 or at pinned_positions (N, P, 3) (linear within a frame). NaN/inf raises
-    ``saft.errors.SimulationError`` naming the frame and substep.
+    ``saft.errors.SimulationError`` naming the frame and substep. ``factor_cache`` (a ``FactorCache``,
+    saft.physics.factor_cache): the CPU solver's preconditioner factors kept across rollouts of the same
+    frames, by absolute substep (``first_step`` = the rollout's first); the shape phase keeps one per run.
 
 ``ElementEval`` - closed-form per-element gradients / Hessians (elements-last), for advanced use.
 

@@ -27,9 +27,9 @@ import torch
 from saft.physics.energy import LN10, ElementEval  # noqa: F401 (ElementEval: tests patch it here)
 from saft.physics.finite import FiniteChecks, check_finite
 from saft.physics.kernels import StepKernels
-from saft.physics import solver as _solver_mod
-from saft.physics.solver import CholmodPCGSolver, JacobiCGSolver, ReusedLUSolver, SolveStats, _csr
-from saft.physics.solver_dense import DenseFactorSolver
+from saft.physics.factor_cache import FactorCache
+from saft.physics.solver import SolveStats, _csr
+from saft.physics.solver_choice import DENSE_SOLVERS, SOLVERS, solver_for  # noqa: F401 (DENSE_SOLVERS, SOLVERS: API)
 from saft.physics.topology import ClothTopology
 
 GRAVITY = (0.0, -9.81, 0.0)
@@ -88,38 +88,6 @@ class PhysicsParams:
         return base if self.anchor is None else base + (self.anchor,)
 
 
-# solver name -> DenseFactorSolver options (solver_dense): the reused dense factor's variants
-DENSE_SOLVERS = {
-    "dense": dict(precond="inv32"),  # explicit inverse in float32, one GEMV per application
-    "dense64": dict(precond="inv64"),
-    "densechol": dict(precond="chol"),  # the Cholesky factor, two triangular solves per application
-    "direct": dict(precond="chol", refactor_every_solve=True),  # a fresh factor every solve
-}
-SOLVERS = ("auto", "lu", "cholmod", "cg", *DENSE_SOLVERS)
-
-
-def _solver_for(topology: ClothTopology, solver: str, tol: float, stats: SolveStats, compile: bool = False):
-    if solver == "auto":
-        # never depends on what is importable: CHOLMOD (opt-in) gives different numbers within the tolerance,
-        # and reconstructions are sensitive to that noise. Other devices: the reused dense factor (solver_dense)
-        solver = "dense" if topology.device.type != "cpu" else "lu"
-    if solver in DENSE_SOLVERS:
-        return DenseFactorSolver(topology.csr_indptr, topology.csr_indices, topology.device, tol=tol, stats=stats,
-                                 compile=compile, **DENSE_SOLVERS[solver])
-    if solver == "cholmod":
-        if not _solver_mod.HAVE_CHOLMOD:
-            raise ValueError("solver='cholmod' needs scikit-sparse (sksparse.cholmod), which is not importable")
-        return CholmodPCGSolver(topology.csr_indptr, topology.csr_indices, tol=tol, stats=stats)
-    if solver == "lu":
-        return ReusedLUSolver(topology.csr_indptr, topology.csr_indices, tol=tol, stats=stats)
-    if solver == "cg":
-        dev = topology.device
-        crow = torch.as_tensor(topology.csr_indptr, device=dev, dtype=torch.int64)
-        col = torch.as_tensor(topology.csr_indices, device=dev, dtype=torch.int64)
-        return JacobiCGSolver(crow, col, topology.diag_idx, tol=tol, stats=stats)
-    raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
-
-
 class _Sim:
     """Everything a rollout needs besides the differentiable inputs."""
 
@@ -139,6 +107,8 @@ class _Sim:
         self.kernels = StepKernels(t, hessian, compile=compile, backend=kernels)
         self.stats = SolveStats()
         self.stats_out = None  # the caller's stats dict (backward counters are added as bwd_*)
+        self.factor_cache = None  # a FactorCache shared with other rollouts (CPU "lu" solver only)
+        self.first_step = 0       # the absolute substep of this rollout's first one, the cache's key
         self.use_numpy = (solver in ("lu", "cholmod")) or (solver == "auto" and t.device.type == "cpu")
         self.m3 = t.mass[:, None].expand(-1, 3)  # (V, 3)
         self.mass_diag = t.mass.repeat_interleave(3)  # (3V,)
@@ -191,7 +161,8 @@ class _Sim:
         return K, A
 
     def new_solver(self):
-        return _solver_for(self.t, self.solver_kind, self.tol, self.stats, self.kernels.use_compile)
+        return solver_for(self.t, self.solver_kind, self.tol, self.stats, self.kernels.use_compile, self.factor_cache,
+                           self.first_step)
 
     def spmv(self, data, vec):
         t = self.t
@@ -418,6 +389,8 @@ def rollout(
     compile: bool | None = None,
     kernels: str | None = None,
     anchor_positions: torch.Tensor | None = None,
+    factor_cache: FactorCache | None = None,
+    first_step: int = 0,
 ) -> torch.Tensor:
     """Simulate ``num_frames`` video frames from (x0, v0); returns positions (num_frames, V, 3) with
     positions[0] = x0. Differentiable w.r.t. x0, v0 and every tensor in ``params``.
@@ -438,6 +411,11 @@ def rollout(
     kernels: element kernel backend, "auto" (numba on CPU float64 with the projected Hessian unless compile
     is on, else torch), "numba" or "torch" (None: the SAFT_PHYSICS_KERNELS environment variable, "auto").
     anchor_positions: (V, 3) where params.anchor's springs pull (None: x0); constants, no gradient.
+    factor_cache: a ``FactorCache`` kept across rollouts of the same frames (the CPU "lu" solver): the
+    forward pass preconditions each substep with the kept factor nearest to it, as the adjoint does, and
+    keeps the factors it makes; ``first_step`` is the absolute substep of this rollout's first substep
+    (frame * substeps for a rollout that starts at that frame). Results agree with a rollout without it to
+    the solver tolerance.
     Raises SimulationError (naming frame and substep) on NaN/inf.
     """
     t = topology
@@ -474,6 +452,7 @@ def rollout(
     sim = _Sim(t, num_frames, substeps, frame_dt, pinned, pinned_positions, hessian, solver, tol, compile,
                kernels, anchor_positions if anchor is not None else None)
     sim.stats_out = stats
+    sim.factor_cache, sim.first_step = factor_cache, int(first_step)
     f = dict(device=dev, dtype=dt)
 
     def sc(v):

@@ -39,6 +39,7 @@ import scipy.sparse.linalg as spla
 import torch
 
 from saft.physics import pcg_numba as _pn
+from saft.physics.factor_cache import FactorCache
 
 
 def _csr(crow, col, data, n):
@@ -67,7 +68,8 @@ class ReusedLUSolver:
 
     def __init__(self, indptr: np.ndarray, indices: np.ndarray, tol: float = 1e-6, max_iter: int = 60,
                  refactor_after: int = 20, precond_float32: bool = True, stats: SolveStats | None = None,
-                 keep_factors_bytes: int = 256 * 2**20, drop_tol: float = 1e-3, backend: str = "numba"):
+                 keep_factors_bytes: int = 256 * 2**20, drop_tol: float = 1e-3, backend: str = "numba",
+                 cache: FactorCache | None = None, step_offset: int = 0):
         self.indptr = indptr.astype(np.int32)
         self.indices = indices.astype(np.int32)
         if backend not in ("numba", "scipy"):
@@ -98,6 +100,13 @@ class ReusedLUSolver:
         self.keep_factors_bytes = keep_factors_bytes
         self.factors: dict[int, tuple] = {}
         self._factor_bytes = 0
+        # a FactorCache shared with earlier rollouts (factor_cache.py): the kept factors live there, keyed by
+        # absolute substep (this rollout's substep i is step_offset + i), and every solve, the forward's too,
+        # starts from the nearest of them
+        self.cache = cache
+        self.step_offset = step_offset
+        if cache is not None:
+            self.factors = cache.entries
 
     def at_step(self, i: int | None, select: bool = False):
         """Tag the following solves with substep ``i``; with ``select`` switch to the kept factor made
@@ -105,12 +114,16 @@ class ReusedLUSolver:
         self.step = i
         # the adjoint pass reuses kept factors and refactorises only when CG fails
         self.adjoint_mode = select
-        if select and self.factors and i is not None:
-            j = min(self.factors, key=lambda k: abs(k - i))
+        if (select or self.cache is not None) and self.factors and i is not None:
+            at = i + self.step_offset
+            j = min(self.factors, key=lambda k: abs(k - at))
             self.lu, self.lu_f32, self.pre = self.factors[j]
 
     def _keep(self):
         if self.step is None:
+            return
+        if self.cache is not None:
+            self._keep_in_cache()
             return
         nbytes = self._factor_nbytes(self.lu, self.lu_f32, self.pre)
         if self._factor_bytes + nbytes > self.keep_factors_bytes:
@@ -122,6 +135,24 @@ class ReusedLUSolver:
                 return
         self.factors[self.step] = (self.lu, self.lu_f32, self.pre)
         self._factor_bytes += nbytes
+
+    def _keep_in_cache(self):
+        """Keep the fresh factor under its absolute substep (replacing an older one there); only the arrays
+        of the numba CG, so that the cache can be checkpointed (factor_cache.py)."""
+        cache = self.cache
+        if self.pre is None:
+            return
+        key = self.step + self.step_offset
+        nbytes = cache.entry_nbytes(self.pre)
+        if key in cache.entries:
+            cache.nbytes -= cache.entry_nbytes(cache.entries.pop(key)[2])
+        if cache.nbytes + nbytes > cache.budget_bytes:
+            for k in sorted(cache.entries)[1::2]:  # over budget: thin out, keeping the spread over time
+                cache.nbytes -= cache.entry_nbytes(cache.entries.pop(k)[2])
+            if cache.nbytes + nbytes > cache.budget_bytes:
+                return
+        cache.entries[key] = (None, self.lu_f32, self.pre)
+        cache.nbytes += nbytes
 
     def _factor_nbytes(self, lu, f32, pre=None):
         extra = 0 if pre is None else sum(a.nbytes for a in pre)
@@ -164,7 +195,7 @@ class ReusedLUSolver:
         if bnorm == 0.0:
             return np.zeros_like(b)
         atol = self.tol * bnorm
-        if self.lu is not None:
+        if self.lu is not None or self.pre is not None:  # (a cached factor has only the numba CG's arrays)
             x, its = self._pcg(data, b, x0, atol)
             if x is not None:
                 if its > self._refactor_threshold():

@@ -22,12 +22,13 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
 from saft.physics import ClothTopology, PhysicsParams, deformation_energy, rollout
+from saft.physics.factor_cache import FactorCache
 from saft.reconstruct.config import PhysicsConfig, ShapeConfig
 from saft.reconstruct.frame_schedule import FrameSchedule, window_first_frame
 from saft.reconstruct.context import PhaseContext
@@ -106,11 +107,13 @@ class ShapeState:
     epoch: int = 0
     states: FrameStates | None = None
     schedule: dict | None = None   # FrameSchedule.state_dict() after the last epoch
+    # the solver's factors from earlier epochs' rollouts (physics/factor_cache.py), checkpointed with the rest
+    factors: FactorCache = field(default_factory=FactorCache)
 
     def state_dict(self) -> dict:
         saved = {"params": {k: v.detach().cpu() for k, v in self.params.tensors().items()},
                  "optimizer": self.optimizer.state_dict(), "epoch": self.epoch, "guard": self.guard.state_dict(),
-                 "schedule": self.schedule}
+                 "schedule": self.schedule, "factors": self.factors.state_dict()}
         if self.states is not None:
             saved["frame_states"] = {"x": self.states.x.cpu(), "v": self.states.v.cpu(), "frames": self.states.frames,
                                      "fresh": self.states.fresh}
@@ -181,6 +184,7 @@ def restore_shape_state(saved: dict, cfg: ShapeConfig, device) -> ShapeState:
                        schedule=saved.get("schedule"))
     state.optimizer.load_state_dict(saved["optimizer"])
     state.guard.load_state_dict(saved.get("guard", {}))
+    state.factors.load_state_dict(saved.get("factors", {}))
     if "frame_states" in saved:
         fs = saved["frame_states"]
         state.states = FrameStates(fs["x"].to(device), fs["v"].to(device), int(fs["frames"]), int(fs.get("fresh", 1)))
@@ -201,15 +205,16 @@ class ShapeSimulator:
         self.mean_edge_length = float(self.topology.rest_len.mean())
         self.field_basis = affine_basis(template.detach())
 
-    def simulate(self, params: ShapeParams, num_frames: int) -> torch.Tensor:
-        """(num_frames, V, 3) positions, frame 0 = template."""
+    def simulate(self, params: ShapeParams, num_frames: int, factors: FactorCache | None = None) -> torch.Tensor:
+        """(num_frames, V, 3) positions, frame 0 = template; `factors`: the solver's cache across epochs."""
         accel = params.accelerations(self.field_basis, 0, num_frames - 1)
         return rollout(self.topology, self.template, None, self._physics(params, accel), num_frames=num_frames,
                        substeps=self.phys.substeps, frame_dt=self.frame_dt, pinned=self.pinned,
-                       hessian=self.phys.hessian, anchor_positions=self.template)
+                       hessian=self.phys.hessian, anchor_positions=self.template, factor_cache=factors)
 
     def simulate_from(self, params: ShapeParams, start: int, num_frames: int, x0: torch.Tensor | None = None,
-                      v0: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+                      v0: torch.Tensor | None = None,
+                      factors: FactorCache | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """Frames start..num_frames-1 from the state (x0, v0) at frame `start` (None: the template at rest):
         positions and velocities at each frame boundary, (num_frames - start, V, 3) each.
 
@@ -223,7 +228,7 @@ class ShapeSimulator:
         a_sub = params.accelerations(self.field_basis, start, num_frames - 1).repeat_interleave(S, dim=0)
         pos = rollout(self.topology, x0, v0, self._physics(params, a_sub), num_frames=(n - 1) * S + 1, substeps=1,
                       frame_dt=self.frame_dt / S, pinned=self.pinned, hessian=self.phys.hessian,
-                      anchor_positions=self.template)
+                      anchor_positions=self.template, factor_cache=factors, first_step=start * S)
         x = pos[::S]
         v = torch.cat([v0[None], (pos[S::S] - pos[S - 1::S]) / (self.frame_dt / S)], dim=0)
         return x, v
@@ -254,17 +259,17 @@ class ShapeSimulator:
 def simulate_epoch(sim: ShapeSimulator, state: ShapeState, frames: int, start: int) -> torch.Tensor:
     """Positions of frames start..frames-1 with graph; windowed runs also refresh the stored states."""
     if state.states is None:
-        return sim.simulate(state.params, frames)
+        return sim.simulate(state.params, frames, state.factors)
     st = state.states
     if 0 < start and st.fresh <= start:
         # Bring the stored states up to the window's start under the current parameters (forward only).
         s0 = st.fresh - 1
         with torch.no_grad():
             x0, v0 = (st.x[s0].clone(), st.v[s0].clone()) if s0 > 0 else (None, None)
-            st.update(s0, *sim.simulate_from(state.params, s0, start + 1, x0, v0))
+            st.update(s0, *sim.simulate_from(state.params, s0, start + 1, x0, v0, state.factors))
     # clones: the rollout keeps its start state for the backward, and update() writes into the store
     x0, v0 = (st.x[start].clone(), st.v[start].clone()) if start > 0 else (None, None)
-    x, v = sim.simulate_from(state.params, start, frames, x0, v0)
+    x, v = sim.simulate_from(state.params, start, frames, x0, v0, state.factors)
     st.update(start, x, v)
     return x
 

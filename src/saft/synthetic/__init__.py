@@ -5,6 +5,9 @@
                   scene folder (saft.scene) — what `saft demo` reconstructs
 - appearance      a cloth sheet with known SVBRDF maps and environment map, rendered with Mitsuba
                   (saft.appearance): the appearance phase's tests and benchmark
+- benchmark_scenes  wind, swing, fold: simulated by saft.physics on the template's mesh, path-traced by Mitsuba
+- newton_cloth      a cloth simulated by NVIDIA Newton's VBD solver (not saft's model; newton imported lazily)
+- independent_scenes  benchmark scenes from Newton on a finer mesh, with saft-simulated (model-matched) twins
 
 It sits above scene/, physics/, render/ and evaluate/ so that those do not import each other for it.
 """

@@ -1,0 +1,97 @@
+"""Shape accuracy on cloth that saft's model did not make (issue 29): Newton VBD scenes and their model-matched twins.
+
+    pip install -e ".[bench]"          # newton + warp-lang (CPU), for the independent simulator
+    python benchmarks/bench_independent.py [--scenes-dir DIR] [--scenarios gust,flag,...] [--variants pinned,unpinned]
+                                           [--simulators independent,matched] [--out DIR] [--noise-seed K]
+                                           [--frames N] [--spp N] [--set key=value ...]
+
+The scenes (saft.synthetic.independent_scenes: a late gust, a flag, a cloth held at two corners, at one
+corner, a folded corner, a gust from the side) are generated into --scenes-dir (default
+/tmp/saft-scenes/independent) when missing or made from another spec: once by NVIDIA Newton's VBD solver on a
+40 × 40 ground-truth mesh ("independent"), once by saft's own simulator on the 25 × 25 template ("matched"),
+both path-traced by Mitsuba at 320 × 240. Each is reconstructed with the default config (shape phases only,
+as bench_scenes.py) and scored against its ground truth: CD2 as the paper defines it (both directions summed),
+1e-4 m². Prints one line per scene, then the table (static template, independent, matched, their ratio) and
+the per-frame curves; writes OUT/bench_independent.json. The last line is
+`independent_cd2_median=<median over the independent scenes> matched_cd2_median=<...>`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+from dataclasses import asdict, replace
+from pathlib import Path
+
+from bench_scenes import run_scene
+
+from saft.io_utils import atomic_write_json
+from saft.synthetic.independent_scenes import (SCENARIOS, SIMULATORS, VARIANTS, IndependentSceneSpec, scene_names,
+                                               write_independent_scenes)
+
+
+def _list(value: str, known, what: str) -> list[str]:
+    items = [v for v in value.split(",") if v]
+    unknown = sorted(set(items) - set(known))
+    if unknown:
+        raise SystemExit(f"--{what}: unknown {', '.join(unknown)} (known: {', '.join(known)})")
+    return items
+
+
+def print_tables(rows: list[dict]) -> None:
+    by = {r["scene"]: r for r in rows}
+    print("\n| scene | static template | independent (Newton) | model-matched (saft) | ratio |")
+    print("|---|---|---|---|---|")
+    for name in dict.fromkeys(r["scene"].replace("_independent_", "|").replace("_matched_", "|") for r in rows):
+        scenario, variant = name.split("|")
+        ind, mat = by.get(f"{scenario}_independent_{variant}"), by.get(f"{scenario}_matched_{variant}")
+        cell = lambda r: "" if r is None else f"{r['cd2_mean']:.3f} (last {r['cd2_last']:.2f})"  # noqa: E731
+        ratio = f"{ind['cd2_mean'] / mat['cd2_mean']:.1f}" if ind and mat else ""
+        static = ind or mat
+        print(f"| {scenario} {variant} | {static['static_cd2_mean']:.2f} | {cell(ind)} | {cell(mat)} | {ratio} |")
+    print("\nper-frame CD2 (1e-4 m²):")
+    for r in rows:
+        print(f"{r['scene']:30s} " + " ".join(f"{c:.2f}" for c in r["cd2_per_frame"]))
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--scenes-dir", type=Path, default=Path("/tmp/saft-scenes/independent"))
+    p.add_argument("--scenarios", default=",".join(SCENARIOS))
+    p.add_argument("--variants", default="pinned")
+    p.add_argument("--simulators", default=",".join(SIMULATORS))
+    p.add_argument("--out", type=Path, default=Path("bench-independent"))
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    d = IndependentSceneSpec()
+    p.add_argument("--frames", type=int, default=d.frames)
+    p.add_argument("--spp", type=int, default=d.spp)
+    p.add_argument("--noise-seed", type=int, default=0, help="move the template by 1e-9 m noise of this seed (0 = no)")
+    p.add_argument("--generate-only", action="store_true", help="write the scenes and stop")
+    args = p.parse_args()
+    scenarios = _list(args.scenarios, SCENARIOS, "scenarios")
+    names = scene_names(scenarios, _list(args.simulators, SIMULATORS, "simulators"),
+                        _list(args.variants, VARIANTS, "variants"))
+    spec = replace(d, frames=args.frames, spp=args.spp)
+    t0, c0 = time.perf_counter(), time.process_time()
+    write_independent_scenes(args.scenes_dir, spec, scenarios)
+    print(f"scenes ready in {args.scenes_dir} ({time.perf_counter() - t0:.0f} s wall, "
+          f"{time.process_time() - c0:.0f} s CPU)", flush=True)
+    if args.generate_only:
+        return
+    rows = []
+    for name in names:
+        rows.append(run_scene(args.scenes_dir / name, args.out / name, args.device, args.set, args.noise_seed))
+        atomic_write_json(args.out / "bench_independent.json",
+                          {"spec": json.loads(json.dumps(asdict(spec))), "overrides": args.set,
+                           "noise_seed": args.noise_seed, "scenes": rows})
+    print_tables(rows)
+    med = {m: statistics.median(r["cd2_mean"] for r in rows if f"_{m}_" in r["scene"])
+           for m in SIMULATORS if any(f"_{m}_" in r["scene"] for r in rows)}
+    print(" ".join(f"{m}_cd2_median={v:.4f}" for m, v in med.items()))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,98 @@
+"""The independent-simulator scenes (saft.synthetic.independent_scenes, newton_cloth): the aerodynamics, the
+grids, the model-matched twin, and (where the optional `bench` extra is installed) Newton's cloth, made tiny."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from saft.scene import load_scene
+from saft.synthetic.hanging_cloth import grid_template
+from saft.synthetic.independent_scenes import (IndependentSceneSpec, _indices, _on_grid, meshes, scenario,
+                                               scene_names, simulate_matched, split_name, write_scenario)
+from saft.synthetic.newton_cloth import AIR_DENSITY, NewtonClothParams, aero_forces
+
+TRI = np.array([[0, 1, 2]])
+FLAT = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # area 0.5, normal +z
+
+
+def test_wind_along_the_normal_pushes_with_the_dynamic_pressure():
+    p = NewtonClothParams(drag_normal=1.3, drag_tangent=0.0)
+    f = aero_forces(FLAT, np.zeros((3, 3)), TRI, np.array([[0.0, 0.0, 2.0]]), p)
+    np.testing.assert_allclose(f.sum(axis=0), [0.0, 0.0, 0.5 * AIR_DENSITY * 1.3 * 0.5 * 4.0])
+    np.testing.assert_allclose(f[0], f[1])  # spread evenly over the three vertices
+    # a cloth moving through still air feels the same force, opposed to its motion (air drag)
+    g = aero_forces(FLAT, np.tile([0.0, 0.0, -2.0], (3, 1)), TRI, np.zeros((1, 3)), p)
+    np.testing.assert_allclose(g, f)
+    # the sign of the normal does not matter: wind from the other side pushes the other way
+    h = aero_forces(FLAT, np.zeros((3, 3)), TRI[:, ::-1], np.array([[0.0, 0.0, -2.0]]), p)
+    np.testing.assert_allclose(h, -f)
+
+
+def test_wind_along_the_cloth_only_rubs():
+    p = NewtonClothParams(drag_normal=1.0, drag_tangent=0.05)
+    f = aero_forces(FLAT, np.zeros((3, 3)), TRI, np.array([[3.0, 0.0, 0.0]]), p)
+    np.testing.assert_allclose(f.sum(axis=0), [0.05 * 0.5 * 3.0, 0.0, 0.0])
+
+
+def test_grids_indices_and_names():
+    field = np.stack(np.meshgrid(np.linspace(0, 1, 7), np.linspace(0, 2, 7), indexing="ij"), -1)
+    out = _on_grid(field, 4)  # a linear field is resampled exactly
+    np.testing.assert_allclose(out[5], [1 / 3, 2 / 3])
+    assert list(_indices([(0.0, 0.0), (0.0, 1.0)], 5)) == [0, 4]
+    assert list(_indices([(0.0, 0.0)], 5, clip=0.25)) == [0, 1, 5]  # the diagonal neighbour is 0.35 away
+    for name in scene_names():
+        scen, sim, variant = split_name(name)
+        assert f"{scen}_{sim}_{variant}" == name
+    with pytest.raises(ValueError):
+        split_name("gust_pinned")
+
+
+def test_both_meshes_share_the_rest_shape_and_the_held_corners():
+    spec = IndependentSceneSpec(gt_grid=9, grid=5)
+    gt, tpl = meshes(scenario("corners", spec), spec)
+    assert gt.vertices.shape == (81, 3) and tpl.vertices.shape == (25, 3)
+    np.testing.assert_allclose(gt.vertices[[0, 8, 72, 80]], tpl.vertices[[0, 4, 20, 24]], atol=1e-12)
+    assert gt.vertices[:, 2].max() > 0.1  # tilted towards the camera
+    np.testing.assert_allclose(meshes(scenario("gust", spec), spec)[1].vertices, grid_template(5, spec.size).vertices,
+                               atol=1e-12)
+
+
+def test_the_matched_twin_holds_its_pins_and_follows_the_felt_wind():
+    spec = IndependentSceneSpec(gt_grid=7, grid=5, frames=5)
+    sc = scenario("gust", spec)
+    gt, tpl = meshes(sc, spec)
+    still = np.repeat(gt.vertices[None], spec.frames, axis=0)  # a ground truth that does not move
+    x = simulate_matched(sc, gt, tpl, still, spec)
+    assert x.shape == (5, 25, 3)
+    np.testing.assert_allclose(x[:, :5], np.broadcast_to(tpl.vertices[:5], (5, 5, 3)), atol=1e-12)  # top row held
+    assert x[-1, 20:, 2].mean() > 1e-4  # the breeze from behind pushes the hem towards the camera (+z)
+
+
+def test_newton_cloth_hangs_from_its_pins_and_billows():
+    pytest.importorskip("newton")
+    from saft.synthetic.newton_cloth import simulate_newton_cloth
+
+    mesh = grid_template(6, 0.3)
+    wind = lambda p, t: np.tile([0.0, 0.0, 2.0], (len(p), 1))  # noqa: E731
+    x = simulate_newton_cloth(mesh.vertices, mesh.triangles, 4, 1 / 30, NewtonClothParams(substeps=5),
+                              kinematic=np.arange(6), wind=wind)
+    assert x.shape == (4, 36, 3) and np.isfinite(x).all()
+    np.testing.assert_allclose(x[:, :6], np.broadcast_to(mesh.vertices[:6], (4, 6, 3)), atol=1e-6)
+    assert x[-1, 30:, 2].mean() > 0.005  # the hem billows along the wind
+    calm = simulate_newton_cloth(mesh.vertices, mesh.triangles, 4, 1 / 30, NewtonClothParams(substeps=5),
+                                 kinematic=np.arange(6))
+    assert abs(calm[-1, :, 2]).max() < 1e-6 and calm[-1, 30:, 1].mean() < mesh.vertices[30:, 1].mean() - 1e-4
+
+
+def test_write_scenario_tiny(tmp_path):
+    pytest.importorskip("newton")
+    spec = IndependentSceneSpec(gt_grid=8, grid=5, frames=3, width=48, height=36, spp=4, texture_size=64,
+                                gt_points=200, newton=NewtonClothParams(substeps=4, iterations=4))
+    folders = write_scenario(tmp_path, "fold", spec)
+    assert sorted(f.name for f in folders) == sorted(scene_names(("fold",)))
+    ind, mat = load_scene(tmp_path / "fold_independent_pinned"), load_scene(tmp_path / "fold_matched_unpinned")
+    assert ind.num_frames == 3 and ind.template.vertices.shape == (25, 3) and list(ind.pinned) == list(range(5))
+    assert mat.pinned is None and mat.frame_dt == pytest.approx(1 / 30)
+    assert np.load(tmp_path / "fold_independent_pinned" / "gt_vertices.npy").shape == (3, 64, 3)
+    assert np.load(tmp_path / "fold_matched_pinned" / "gt_vertices.npy").shape == (3, 25, 3)
