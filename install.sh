@@ -8,7 +8,7 @@ set -euo pipefail
 cd "$(dirname "$0")"
 dev=""
 [ "${1:-}" = "--dev" ] && dev="yes"
-extras="batch${dev:+,dev}"          # batch: Ray, for `saft batch`
+extras="batch${dev:+,dev,bench}"    # batch: Ray, for `saft batch`; bench: Newton, for the tests of the independent scenes
 
 # System packages: Mitsuba's CPU backend (appearance phase) needs LLVM >= 19; the tests use headless
 # Chromium (HTML report) and the Khronos glTF validator (npm).
