@@ -83,3 +83,33 @@ def test_relit_views_of_the_true_maps_match_and_wrong_maps_do_not():
                           spp=16)
     assert same["relit_video_psnr_db"] > 60 and same["relit_unseen_psnr_db"] > 60  # same seeds: identical
     assert wrong["relit_video_psnr_db"] < 30 and wrong["relit_unseen_psnr_db"] < 30
+
+
+def test_result_folder_is_scored_beside_the_texture_only_baseline(tmp_path):
+    """saft evaluate's appearance part: a result whose material/ holds the true maps beats its own
+    phase-1 texture on every metric, and the metrics land in material/appearance.json."""
+    import json
+
+    import torch
+
+    from saft.appearance.config import cpu_profile
+    from saft.appearance.fit import AppearanceResult, save_appearance
+    from saft.appearance.params import linear_to_srgb
+    from saft.evaluate.appearance_result import evaluate_appearance_result, format_appearance_table
+    from saft.io_utils import write_image
+    from saft.synthetic.appearance import AppearanceSceneSpec, write_appearance_scene
+
+    spec = AppearanceSceneSpec(fabric="lame", frames=3, width=48, height=36, spp=8, map_size=64, grid=5,
+                               env_height=16, env_width=32)
+    scene = write_appearance_scene(tmp_path / "scene", spec)
+    gt = read_appearance_ground_truth(scene)
+    result = tmp_path / "result"
+    shaded = linear_to_srgb(torch.as_tensor(gt.base_color * 0.6)).numpy()
+    write_image(result / "texture.png", shaded)
+    save_appearance(AppearanceResult(gt.base_color, gt.roughness, gt.metallic, gt.env_video, [], cpu_profile()), result)
+    assert evaluate_appearance_result(result, tmp_path / "nothing") is None
+    out = evaluate_appearance_result(result, scene, spp=8)
+    assert all(out["phase3_better"].values()) and len(out["phase3_better"]) == 5
+    saved = json.loads((result / "material" / "appearance.json").read_text())["ground_truth_metrics"]
+    assert saved["phase3"]["roughness_mae"] < 0.01
+    assert "texture only" in format_appearance_table(out)

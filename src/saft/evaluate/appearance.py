@@ -95,7 +95,8 @@ def texture_baseline(texture_srgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     return srgb_to_linear(tex), np.ones(size, np.float32), np.zeros(size, np.float32)
 
 
-def _resize(a: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+def resize_map(a: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """A map (H, W) or (H, W, C) resampled to `shape` (area when shrinking, bilinear when growing)."""
     a = np.asarray(a, dtype=np.float32)
     if a.shape[:2] == tuple(shape):
         return a
@@ -141,12 +142,12 @@ def psnr(mse: float) -> float:
 def map_metrics(diffuse, roughness, metallic, gt: AppearanceGroundTruth, coverage: np.ndarray) -> dict:
     """The three map metrics (module docstring) over `coverage` (GT-sized bool)."""
     shape = gt.roughness.shape
-    d = _resize(diffuse, shape)
+    d = resize_map(diffuse, shape)
     scale = per_channel_scale(d, gt.base_color, coverage)
     mse = float((((d * scale - gt.base_color) ** 2)[coverage]).mean())
     return {"diffuse_psnr_db": psnr(mse), "diffuse_scale": [float(s) for s in scale],
-            "roughness_mae": float(np.abs(_resize(roughness, shape) - gt.roughness)[coverage].mean()),
-            "metallic_mae": float(np.abs(_resize(metallic, shape) - gt.metallic)[coverage].mean())}
+            "roughness_mae": float(np.abs(resize_map(roughness, shape) - gt.roughness)[coverage].mean()),
+            "metallic_mae": float(np.abs(resize_map(metallic, shape) - gt.metallic)[coverage].mean())}
 
 
 def novel_cameras(camera: Camera, vertices: np.ndarray) -> list[tuple[int, Camera]]:
