@@ -3,8 +3,10 @@
 The data of a short video cannot tell every material from every light, so the unknowns are cut down to
 what it can determine (issue 28):
 
-* diffuse = clamp(T · exp(G↑), 0, 1): T is the phase-1 texture (linearised, resampled to S×S: the sharp
-  detail; optionally blurred inside each material cluster to remove its pixel noise), G a coarse g×g×3 log-gain grid, bilinearly upsampled (G↑), that divides out the shading and
+* diffuse = clamp((T_s + a·(T − T_s)) · exp(G↑), 0, 1): T is the phase-1 texture (linearised, resampled to
+  S×S: the sharp detail), T_s the same blurred inside each material cluster (its pixel noise averaged
+  away, but also any pattern finer than the blur, such as a weave), a ∈ (0, 1) per cluster a learnt share
+  of the removed detail (the frames decide: noise of frame 0 does not repeat in other frames), G a coarse g×g×3 log-gain grid, bilinearly upsampled (G↑), that divides out the shading and
   the light's colour baked into T at frame 0 (shading varies at the scale of the folds, not of the texels);
 * roughness and metallic are piecewise constant over K material clusters: k-means (scipy) on the
   texture's colours, since a thread of one colour is one material. Each cluster has one roughness and one
@@ -100,6 +102,7 @@ class GuidedMaps(nn.Module):
         tex = tex[0].permute(1, 2, 0).clamp(1e-3, 1.0).numpy()
         labels = material_clusters(tex, clusters, seed)
         self.register_buffer("texture", torch.as_tensor(smooth_within_clusters(tex, labels, smoothing)))
+        self.register_buffer("detail", torch.as_tensor(tex) - self.texture)   # what the smoothing removed
         labels = torch.as_tensor(labels)
         k = int(labels.max()) + 1
         onehot = Fnn.one_hot(labels, k).permute(2, 0, 1).to(torch.float32)  # (k, S, S)
@@ -109,6 +112,9 @@ class GuidedMaps(nn.Module):
         self.gain = nn.Parameter(torch.zeros(1, 3, gain_grid, gain_grid))
         self.rough_logit = nn.Parameter(torch.full((k,), _logit(init_roughness)))
         self.metal_logit = nn.Parameter(torch.full((k,), _logit(init_metallic)))
+        # per cluster, how much of the removed detail comes back (sigmoid; starts at one half): the frames
+        # decide whether it was the texture's noise (it does not repeat in other frames) or a real pattern
+        self.detail_logit = nn.Parameter(torch.zeros(k))
 
     @property
     def size(self) -> int:
@@ -126,8 +132,9 @@ class GuidedMaps(nn.Module):
         s = self.size
         gain = Fnn.interpolate(self.gain, size=(s, s), mode="bilinear", align_corners=False)[0].permute(1, 2, 0)
         vals = self.cluster_values()
+        detail = torch.einsum("k,khw->hw", torch.sigmoid(self.detail_logit), self.members)
         return {
-            "diffuse": (self.texture * torch.exp(gain)).clamp(0.0, 1.0),
+            "diffuse": ((self.texture + self.detail * detail[..., None]) * torch.exp(gain)).clamp(0.0, 1.0),
             "roughness": torch.einsum("k,khw->hw", vals["roughness"], self.members),
             "metallic": torch.einsum("k,khw->hw", vals["metallic"], self.members),
         }
