@@ -48,11 +48,12 @@ def evaluate_appearance_result(result_dir, scene_dir, spp: int = 64, device="cpu
 
 
 def format_appearance_table(metrics: dict) -> str:
-    """Phase 3 and the texture-only baseline side by side, one metric a line."""
-    lines = [f"{'appearance metric':<24}{'phase 3':>10}{'texture only':>14}  better"]
+    """Phase 3 and the texture-only baseline side by side, one metric a line, with the better one (or a tie)."""
+    rows = [("appearance metric", "phase 3", "texture only", "better")]
     for k in METRIC_NAMES:
         if k in metrics["phase3"]:
-            arrow = "higher" if HIGHER_IS_BETTER[k] else "lower"
-            lines.append(f"{k + ' (' + arrow + ')':<24}{metrics['phase3'][k]:>10.3f}{metrics['texture_only'][k]:>14.3f}"
-                         f"  {'phase 3' if metrics['phase3_better'][k] else 'texture only'}")
-    return "\n".join(lines)
+            a, b = metrics["phase3"][k], metrics["texture_only"][k]
+            better = "tie" if abs(a - b) < 1e-9 else ("phase 3" if metrics["phase3_better"][k] else "texture only")
+            rows.append((f"{k} ({'higher' if HIGHER_IS_BETTER[k] else 'lower'} is better)", f"{a:.3f}", f"{b:.3f}", better))
+    widths = [max(len(r[j]) for r in rows) for j in range(4)]
+    return "\n".join(f"{r[0]:<{widths[0]}}  {r[1]:>{widths[1]}}  {r[2]:>{widths[2]}}  {r[3]}" for r in rows)

@@ -267,6 +267,12 @@ def _srgb(x: np.ndarray) -> np.ndarray:
     return linear_to_srgb(torch.as_tensor(np.ascontiguousarray(x, dtype=np.float32))).numpy()
 
 
+def _better(gtm: dict, key: str, phase3_better: bool) -> str:
+    if abs(gtm["phase3"][key] - gtm["texture_only"][key]) < 1e-9:
+        return "tie"
+    return "phase 3" if phase3_better else "texture only"
+
+
 def _section_appearance_gt(res: Result) -> str | None:
     """Phase 3 against the scene's appearance ground truth (saft evaluate wrote it into appearance.json):
     the metrics beside the texture-only baseline and each map | its truth | |error|; None without them."""
@@ -279,7 +285,7 @@ def _section_appearance_gt(res: Result) -> str | None:
     parts = []
     rows = "".join(f"<tr><td>{html.escape(k)}</td><td class=\"num\">{gtm['phase3'][k]:.3f}</td>"
                    f"<td class=\"num\">{gtm['texture_only'][k]:.3f}</td>"
-                   f"<td>{'phase 3' if better else 'texture only'}</td></tr>" for k, better in gtm["phase3_better"].items())
+                   f"<td>{_better(gtm, k, better)}</td></tr>" for k, better in gtm["phase3_better"].items())
     parts.append("<table><tr><th>metric</th><th>phase 3</th><th>texture only</th><th>better</th></tr>"
                  f"{rows}</table>")
     gt = read_appearance_ground_truth(gtm["scene"]) if Path(gtm["scene"]).is_dir() else None
