@@ -29,7 +29,7 @@ device="cpu", progress=None, resume_state=None, checkpoint=None, init_texture=No
     per frame (updates positions + normals through ``mi.traverse``, no rebuild), ``render(diffuse,
     roughness, metallic, env, spp, seed)`` → linear (H, W, 3) torch tensor, differentiable in the inputs.
 ``GuidedMaps`` (guided: the phase-1 texture with its shading divided out by a coarse gain grid, roughness
-    and metallic constant per colour cluster, sparsity / matte / spread priors), ``cluster_evidence``
+    and metallic constant per colour cluster, metallic sparsity prior, a learnt share of the texture's fine detail), ``cluster_evidence``
     (evidence: is a cluster's material determined by the video?), ``PyramidEnvironmentMap`` (exp of a
     pyramid of log-radiance grids, fitted coarse to fine),
 ``TextureDecoder``, ``TexelMaps``, ``EnvironmentMap``, ``colour_weight`` (grey → blend → colour schedule),

@@ -27,7 +27,6 @@ class AppearanceConfig:
     clusters: int = 6                    # maps="guided": material clusters (k-means on the texture's colours)
     texture_smoothing: float = 0.0       # maps="guided": σ (texels) of the blur inside each cluster
     lambda_metallic_l1: float = 0.0      # maps="guided": area-weighted mean metallic (sparsity prior)
-    lambda_material_spread: float = 0.0  # maps="guided": clusters' variance of roughness and metallic
     # maps="guided": a cluster whose fitted material lowers the loss by less than this (relative) against
     # matte is set to matte and reported undetermined (appearance.evidence); 0 = no test
     evidence_threshold: float = 0.0

@@ -13,8 +13,7 @@ what it can determine (issue 28):
   metallic (sigmoid of a free logit): 2K numbers estimated from every pixel of every frame instead of
   2·S² noisy texels;
 * ``metallic_l1()``: the area-weighted mean metallic, a sparsity prior that keeps clusters dielectric
-  unless the data insists; ``spread()``: the clusters' area-weighted variance of roughness and metallic,
-  which keeps them one material unless the data insists.
+  unless the data insists.
 """
 
 from __future__ import annotations
@@ -149,15 +148,6 @@ class GuidedMaps(nn.Module):
     def set_dielectric(self, k: int) -> None:
         """Cluster k to metallic 0 (a fitted metallic of a few per cent is noise, not a material)."""
         self.metal_logit[k] = -20.0
-
-    def spread(self) -> torch.Tensor:
-        """Area-weighted variance of the clusters' roughness and metallic around their area-weighted means:
-        clusters share one material unless the data insists."""
-        out = 0.0
-        for v in self.cluster_values().values():
-            mean = (self.area * v).sum()
-            out = out + (self.area * (v - mean) ** 2).sum()
-        return out
 
     def metallic_l1(self) -> torch.Tensor:
         """Area-weighted mean metallic (the sparsity prior)."""
