@@ -86,3 +86,25 @@ def test_guided_fit_beats_the_texture_only_baseline_on_a_tiny_satin(tmp_path):
     assert fitted["roughness_mae"] < baseline["roughness_mae"] - 0.2
     assert fitted["metallic_mae"] <= 0.05
     assert fitted["diffuse_psnr_db"] > baseline["diffuse_psnr_db"] - 1.0
+
+
+def test_guided_fit_checkpoints_and_resumes():
+    from saft.appearance.config import cpu_profile
+    from saft.appearance.fit import fit_appearance
+    from saft.appearance.params import linear_to_srgb
+    from saft.synthetic.appearance import make_scene
+
+    sc = make_scene(n_frames=2, image_size=32, map_size=32, render_spp=16)
+    texture = linear_to_srgb(torch.as_tensor(sc.diffuse)).numpy()
+    cfg = cpu_profile()
+    cfg.epochs, cfg.frames_per_epoch, cfg.texel_size, cfg.image_scale, cfg.checkpoint_every = 4, 1, 64, 1.0, 2
+    states = []
+    res = fit_appearance(sc.vertices, sc.triangles, sc.uvs, sc.camera, sc.rgb, sc.mask, cfg, checkpoint=states.append,
+                         init_texture=texture)
+    assert [s["epoch"] for s in states] == [2, 4] and res.materials is not None
+    resumed = fit_appearance(sc.vertices, sc.triangles, sc.uvs, sc.camera, sc.rgb, sc.mask, cfg,
+                             resume_state=states[0], init_texture=texture)
+    assert resumed.losses[:2] == states[0]["losses"] and len(resumed.losses) == 4
+    assert np.abs(resumed.diffuse - res.diffuse).max() < 1e-4   # the same seeds: the same fit
+    with pytest.raises(Exception, match="phase-1 texture"):
+        fit_appearance(sc.vertices, sc.triangles, sc.uvs, sc.camera, sc.rgb, sc.mask, cfg)
