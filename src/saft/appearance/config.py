@@ -118,16 +118,17 @@ def paper_profile() -> AppearanceConfig:
 # benchmarks/bench_appearance.py, BENCHMARKS.md "Appearance against ground truth"), shared by the CPU and
 # CUDA profiles: maps from the phase-1 texture (blurred inside colour clusters, shading divided out by an
 # 8×8 gain grid, roughness / metallic per cluster), metallic sparsity, the per-cluster evidence test, a
-# log-radiance pyramid env map, learning rates decaying to a tenth.
+# log-radiance pyramid env map (64×128 over 5 levels), learning rates decaying to a tenth.
 GUIDED = dict(maps="guided", texel_size=512, gain_grid=8, clusters=6, texture_smoothing=4.0, lambda_metallic_l1=0.01,
               evidence_threshold=0.01, lr_texels=0.1, lr_final_factor=0.1, init_roughness=0.6, init_metallic=0.1,
-              env_levels=4, lr_env=0.05)
+              env_levels=5, lr_env=0.05, env_height=64, env_width=128)
 
 
 def cpu_profile(base: AppearanceConfig | None = None) -> AppearanceConfig:
     """The automatic CPU profile, chosen on the ground-truth metrics of bench_appearance.py (see GUIDED):
     150 epochs of 3 random frames at half resolution (160×120 for a 320×240 video), 1 spp, 512² maps, the
-    env map fitted at 32×64 (4 pyramid levels) and returned upsampled to 256×512, re-renders at 32 spp.
+    env map fitted at 64×128 (5 pyramid levels; at 32×64 over 4 the roughness MAE was higher on cotton,
+    print and satin) and returned upsampled to 256×512, re-renders at 32 spp.
     The decoder's values below serve maps="decoder" only.
     """
     base = base or AppearanceConfig()
@@ -143,8 +144,6 @@ def cpu_profile(base: AppearanceConfig | None = None) -> AppearanceConfig:
         latent_channels=128,
         lr_decoder=5e-3,
         betas_decoder=(0.9, 0.999),
-        env_height=32,
-        env_width=64,
         render_spp=32,
         checkpoint_every=25,
     )
@@ -152,13 +151,12 @@ def cpu_profile(base: AppearanceConfig | None = None) -> AppearanceConfig:
 
 def cuda_profile(base: AppearanceConfig | None = None) -> AppearanceConfig:
     """The automatic CUDA profile: the paper's budget (2000 epochs of every frame at full resolution, 1 spp,
-    256×512 output env map) with the parametrisation and priors measured on the CPU (GUIDED) and the env
-    map fitted at 64×128 over 5 pyramid levels. Not measured on a GPU (Mitsuba's CUDA variant has not run
+    256×512 output env map) with the parametrisation and priors measured on the CPU (GUIDED). Not measured
+    on a GPU (Mitsuba's CUDA variant has not run
     in this project); ``appearance.profile = "paper"`` gives the paper's own settings.
     """
     base = base or AppearanceConfig()
-    return replace(base, profile="cuda", epochs=2000, frames_per_epoch=0, image_scale=1.0,
-                   **{**GUIDED, "env_levels": 5}, env_height=64, env_width=128)
+    return replace(base, profile="cuda", epochs=2000, frames_per_epoch=0, image_scale=1.0, **GUIDED)
 
 
 def profile_for_device(device, base: AppearanceConfig | None = None) -> AppearanceConfig:
