@@ -14,7 +14,7 @@ the "video" environment map (saft.synthetic.appearance.write_appearance_scene; s
 
     PYTHONPATH=src nice -n 10 python3 benchmarks/bench_appearance.py                 # 16 frames, 160x120
     PYTHONPATH=src nice -n 10 python3 benchmarks/bench_appearance.py --frames 32 --width 320 --height 240
-    PYTHONPATH=src python3 benchmarks/bench_appearance.py --fabrics satin --set prior_metallic=0   # ablation
+    PYTHONPATH=src python3 benchmarks/bench_appearance.py --fabrics lame --set lambda_metallic_l1=0   # ablation
 """
 
 from __future__ import annotations
