@@ -50,7 +50,7 @@ def test_appearance_profile_follows_the_appearance_device(monkeypatch):
     assert load_saft_config(None, ['run.device="auto"']).appearance.profile == "cpu"
     monkeypatch.setattr(D, "_mitsuba_cuda_ok", lambda: True)
     assert D.appearance_device("auto").type == "cuda"
-    assert load_saft_config(None, ['run.device="auto"']).appearance.profile == "paper"
+    assert load_saft_config(None, ['run.device="auto"']).appearance.profile == "cuda"
 
 
 def test_physics_device_override_for_ab_runs(monkeypatch):

@@ -29,6 +29,7 @@ from saft.device import plan_devices
 from saft.errors import BackendUnavailableError, SaftInputError, SimulationError
 from saft.evaluate import (evaluate_result_dir, format_metrics_table, ground_truth_files, ground_truth_spec_for,
                            ground_truth_spec_from_path)
+from saft.evaluate.appearance_result import evaluate_appearance_result, format_appearance_table
 from saft.export import export_command, report_command
 from saft.reconstruct import reconstruct
 from saft.reconstruct.checkpoint import checkpoint_path
@@ -68,6 +69,12 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     metrics = evaluate_result_dir(args.result_dir, spec, seed=args.seed, allow_partial=args.allow_partial)
     print(format_metrics_table(metrics))
     log.info("wrote %s", Path(args.result_dir) / "metrics.json")
+    gt_path = Path(args.gt)
+    scene_dir = gt_path.parent if gt_path.suffix.lower() == ".json" else gt_path
+    appearance = evaluate_appearance_result(args.result_dir, scene_dir)
+    if appearance is not None:
+        print(format_appearance_table(appearance))
+        log.info("wrote the appearance metrics into %s", Path(args.result_dir) / "material" / "appearance.json")
     return 0
 
 

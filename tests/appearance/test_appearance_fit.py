@@ -16,7 +16,9 @@ def scene():
 
 
 def _config(epochs):
-    cfg = cpu_profile()
+    cfg = cpu_profile()   # the plain-texel parametrisation (the guided one: test_appearance_guided.py)
+    cfg.maps, cfg.texel_size, cfg.env_levels, cfg.env_height, cfg.env_width = "texels", 128, 1, 64, 128
+    cfg.lr_final_factor = 1.0
     cfg.epochs = epochs
     cfg.image_scale = 1.0
     cfg.frames_per_epoch = 2

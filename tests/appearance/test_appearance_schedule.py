@@ -91,7 +91,11 @@ def test_config_profiles():
     assert paper.lambda_env_l1 == 1e-5 and paper.lambda_env_smooth == 5e-5
     cpu = profile_for_device("cpu")
     assert cpu.profile == "cpu" and cpu.epochs < paper.epochs
-    assert profile_for_device("cuda").profile == "paper"
+    cuda = profile_for_device("cuda")
+    assert cuda.profile == "cuda" and cuda.epochs == paper.epochs and cuda.frames_per_epoch == 0
+    assert cuda.image_scale == 1.0 and cuda.spp == paper.spp and cuda.maps == cpu.maps == "guided"
+    assert (cuda.env_output_height, cuda.env_output_width) == (paper.env_output_height, paper.env_output_width)
+    assert profile_for_device(torch.device("cpu")).profile == "cpu"
     assert AppearanceConfig.from_dict(cpu.to_dict()) == cpu
     cpu.validate()
     bad = cpu_profile()

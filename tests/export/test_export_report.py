@@ -142,3 +142,27 @@ def test_browser_check_sees_errors(browser, tmp_path):
     info, errors = browser.open(page)
     assert any("boom" in e for e in errors)
     assert info["images"][0][1] == 0
+
+
+def test_report_shows_maps_beside_their_ground_truth(bare_result_dir, tmp_path):
+    """With appearance metrics from saft evaluate, the report has the section: the table of phase 3 against
+    the texture-only baseline and one estimate | truth | |error| figure per map."""
+    from saft.appearance.config import cpu_profile
+    from saft.appearance.fit import AppearanceResult, save_appearance
+    from saft.evaluate.appearance import read_appearance_ground_truth
+    from saft.evaluate.appearance_result import evaluate_appearance_result
+    from saft.synthetic.appearance import AppearanceSceneSpec, write_appearance_scene
+
+    spec = AppearanceSceneSpec(fabric="satin", frames=2, width=40, height=30, spp=4, map_size=32, grid=5,
+                               env_height=8, env_width=16)
+    scene = write_appearance_scene(tmp_path / "scene", spec)
+    gt = read_appearance_ground_truth(scene)
+    res = AppearanceResult(gt.base_color * 0.5, gt.roughness * 0 + 0.5, gt.metallic, gt.env_video, [], cpu_profile(),
+                           materials=[{"cluster": 0, "area": 1.0, "determined": False}])
+    save_appearance(res, bare_result_dir)
+    assert evaluate_appearance_result(bare_result_dir, scene, spp=4) is not None
+    text = write_report(bare_result_dir, tmp_path / "r.html").read_text()
+    section = text.split('<section id="appearance">')[1].split("</section>")[0]
+    assert "<td>roughness_mae</td>" in section and "texture only" in section
+    assert section.count("estimate | truth | |error|</figcaption>") == 3
+    assert "showed no specular evidence" in text.split('<section id="maps">')[1].split("</section>")[0]

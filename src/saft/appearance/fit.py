@@ -14,9 +14,11 @@ import torch
 import torch.nn.functional as Fnn
 
 from saft.appearance.config import AppearanceConfig
+from saft.appearance.evidence import cluster_evidence, undetermined_note
+from saft.appearance.guided import GuidedMaps
 from saft.appearance.mitsuba_backend import load_mitsuba
-from saft.appearance.params import (EnvironmentMap, TexelMaps, TextureDecoder, colour_weight, env_amplitude,
-                                    env_smoothness, linear_to_srgb, srgb_to_linear)
+from saft.appearance.params import (EnvironmentMap, PyramidEnvironmentMap, TexelMaps, TextureDecoder, colour_weight,
+                                    env_amplitude, env_smoothness, linear_to_srgb, srgb_to_linear)
 from saft.appearance.renderer import ClothRenderer
 from saft.errors import SaftInputError
 from saft.io_utils import atomic_path, atomic_write_json, read_image, resize_images, write_image
@@ -41,15 +43,31 @@ class AppearanceResult:
     seconds: float = 0.0              # wall-clock time of the fit
     cpu_seconds: float = 0.0          # CPU time of this process (all threads) during the fit
     state: dict | None = field(default=None, repr=False)
+    # maps="guided": per material cluster, its area, roughness, metallic and whether the video determined
+    # it (appearance.evidence); None for the other parametrisations
+    materials: list[dict] | None = None
 
 
-def _build_model(cfg: AppearanceConfig) -> torch.nn.Module:
+def _build_model(cfg: AppearanceConfig, init_texture) -> torch.nn.Module:
+    if cfg.maps == "guided":
+        if init_texture is None:
+            raise SaftInputError("appearance.maps", "'guided' maps start from the phase-1 texture; none was given")
+        return GuidedMaps(srgb_to_linear(np.asarray(init_texture, dtype=np.float32)[..., :3]), size=cfg.texel_size,
+                          gain_grid=cfg.gain_grid, clusters=cfg.clusters, min_roughness=cfg.min_roughness,
+                          init_roughness=cfg.init_roughness, init_metallic=cfg.init_metallic, seed=cfg.seed,
+                          smoothing=cfg.texture_smoothing)
     init = dict(min_roughness=cfg.min_roughness, init_diffuse=cfg.init_diffuse, init_roughness=cfg.init_roughness,
                 init_metallic=cfg.init_metallic)
     if cfg.maps == "decoder":
         return TextureDecoder(tile_size=cfg.tile_size, num_tiles=cfg.num_tiles, overlap=cfg.tile_overlap,
                               latent_channels=cfg.latent_channels, seed=cfg.seed, **init)
     return TexelMaps(size=cfg.texel_size, **init)
+
+
+def _snap(a: np.ndarray, value: float, tol: float = 1e-6) -> np.ndarray:
+    """float32 copy with entries within tol of `value` set to it exactly (a cluster set to matte by the
+    evidence test is sigmoid(±20), not exactly 1 or 0)."""
+    return np.where(np.abs(a - value) < tol, value, a).astype(np.float32)
 
 
 def _resize_targets(rgb: np.ndarray, mask: np.ndarray, camera: Camera, scale: float):
@@ -112,7 +130,7 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
                    config: AppearanceConfig | None = None, device="cpu",
                    progress: Callable[[int, int, float], None] | None = None,
                    resume_state: dict | None = None,
-                   checkpoint: Callable[[dict], None] | None = None) -> AppearanceResult:
+                   checkpoint: Callable[[dict], None] | None = None, init_texture=None) -> AppearanceResult:
     """Estimate diffuse/roughness/metallic maps and an environment map from frames with frozen geometry.
 
     vertices_per_frame (F, V, 3) world positions; triangles (T, 3); uvs (V, 2) OBJ convention; camera: the
@@ -121,6 +139,7 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
     config.checkpoint_every epochs and at the end, with a state dict that `resume_state=` continues from.
     progress may raise (e.g. on Ctrl-C) to stop the fit: checkpoint(state) is called with the state after
     that epoch before the exception goes on, so an interruption loses no finished epoch.
+    init_texture: the phase-1 texture (St, St, 3) sRGB, which maps="guided" starts from (required there).
     """
     cfg = copy.deepcopy(config) if config is not None else AppearanceConfig()
     cfg.validate()
@@ -145,8 +164,11 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
     slope_t = srgb_slope(rgb_t)
 
     torch.manual_seed(cfg.seed)
-    model = _build_model(cfg).to(dev)
-    env = EnvironmentMap(cfg.env_height, cfg.env_width, cfg.env_init, cfg.env_min).to(dev)
+    model = _build_model(cfg, init_texture).to(dev)
+    if cfg.env_levels > 1:
+        env = PyramidEnvironmentMap(cfg.env_height, cfg.env_width, cfg.env_levels, cfg.env_init, cfg.env_min).to(dev)
+    else:
+        env = EnvironmentMap(cfg.env_height, cfg.env_width, cfg.env_init, cfg.env_min).to(dev)
     if cfg.maps == "decoder":
         opt_maps = torch.optim.Adam(model.parameters(), lr=cfg.lr_decoder, betas=tuple(cfg.betas_decoder))
     else:
@@ -173,8 +195,13 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
 
     t0, c0 = time.perf_counter(), time.process_time()
     batch = cfg.frames_per_epoch if 0 < cfg.frames_per_epoch < n_frames else n_frames
+    base_lrs = [cfg.lr_decoder if cfg.maps == "decoder" else cfg.lr_texels, cfg.lr_env]  # (resume: not the decayed)
     for epoch in range(start_epoch, cfg.epochs):
         w = colour_weight(epoch, cfg.epochs, cfg.grey_fraction, cfg.blend_fraction)
+        decay = cfg.lr_final_factor ** (epoch / max(cfg.epochs - 1, 1))  # exponential: 1 → lr_final_factor
+        for opt, lr in zip((opt_maps, opt_env), base_lrs):
+            for g in opt.param_groups:
+                g["lr"] = lr * decay
         if batch < n_frames:
             frames = np.sort(np.random.default_rng(cfg.seed * 100_003 + epoch).choice(n_frames, batch, replace=False))
         else:
@@ -198,6 +225,8 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
             (loss / len(frames)).backward()
             epoch_loss += float(report.detach()) / len(frames)
         reg = cfg.lambda_env_l1 * env_amplitude(env_eff) + cfg.lambda_env_smooth * env_smoothness(env_eff)
+        if isinstance(model, GuidedMaps):
+            reg = reg + cfg.lambda_metallic_l1 * model.metallic_l1()
         opt_maps.zero_grad(set_to_none=True)
         opt_env.zero_grad(set_to_none=True)
         outs = [maps[k] for k in leaves] + [env_eff]
@@ -222,6 +251,18 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
                 and epoch + 1 < cfg.epochs:
             checkpoint(state(epoch + 1))
 
+    evidence = None
+    if isinstance(model, GuidedMaps) and cfg.evidence_threshold > 0:
+        test_frames = [int(f) for f in np.linspace(0, n_frames - 1, min(n_frames, 8)).round()]
+        env_now = env(colour_weight(cfg.epochs - 1, cfg.epochs, cfg.grey_fraction, cfg.blend_fraction)).detach()
+
+        def render_frame(f, d, r, m, e, spp, seed):
+            renderer.set_vertices(verts[f])
+            return renderer.render(d, r, m, e, spp=spp, seed=seed)
+
+        evidence = cluster_evidence(model, env_now, render_frame, test_frames,
+                                    lambda f, img: masked_linearised_srgb_mse(img, lin_t[f], slope_t[f], mask_t[f]),
+                                    spp=cfg.evidence_spp, threshold=cfg.evidence_threshold)
     final_state = state(cfg.epochs)
     if checkpoint is not None:
         checkpoint(final_state)
@@ -234,14 +275,15 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
                                         align_corners=False)[0].permute(1, 2, 0).clamp_min(cfg.env_min)
     return AppearanceResult(
         diffuse=maps["diffuse"].cpu().numpy().astype(np.float32),
-        roughness=maps["roughness"].cpu().numpy().astype(np.float32),
-        metallic=maps["metallic"].cpu().numpy().astype(np.float32),
+        roughness=_snap(maps["roughness"].cpu().numpy(), 1.0),
+        metallic=_snap(maps["metallic"].cpu().numpy(), 0.0),
         envmap=env_final.cpu().numpy().astype(np.float32),
         losses=losses,
         config=cfg,
         seconds=time.perf_counter() - t0,
         cpu_seconds=time.process_time() - c0,
         state=final_state,
+        materials=evidence,
     )
 
 
@@ -305,8 +347,12 @@ def save_appearance(result: AppearanceResult, out_dir) -> dict[str, Path]:
     write_image(paths["metallic"], result.metallic)
     _write_exr(paths["envmap"], result.envmap)
     write_image(paths["envmap_preview"], env_preview(result.envmap))
-    atomic_write_json(paths["summary"], {"config": result.config.to_dict(), "losses": result.losses,
-                                         "seconds": result.seconds, "cpu_seconds": result.cpu_seconds})
+    summary = {"config": result.config.to_dict(), "losses": result.losses, "seconds": result.seconds,
+               "cpu_seconds": result.cpu_seconds}
+    if result.materials is not None:
+        summary["materials"] = result.materials
+        summary["undetermined"] = undetermined_note(result.materials)
+    atomic_write_json(paths["summary"], summary)
     return paths
 
 
@@ -323,4 +369,6 @@ def load_appearance(out_dir) -> AppearanceResult:
         losses=list(summary.get("losses", [])),
         config=cfg,
         seconds=float(summary.get("seconds", 0.0)),
+        cpu_seconds=float(summary.get("cpu_seconds", 0.0)),
+        materials=summary.get("materials"),
     )

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 
 import torch
+import torch.nn.functional as Fnn
 from torch import nn
 
 
@@ -146,12 +147,55 @@ class EnvironmentMap(nn.Module):
     def forward(self, colour_weight: float = 1.0) -> torch.Tensor:
         """(1 − w)·grey + w·colour, grey = the channel mean (w = 0: no hue at all)."""
         env = self.data.clamp_min(self.min_value)
-        if colour_weight >= 1.0:
-            return env
-        grey = env.mean(dim=2, keepdim=True).expand_as(env)
-        if colour_weight <= 0.0:
-            return grey
-        return (1.0 - colour_weight) * grey + colour_weight * env
+        return with_colour_weight(env, colour_weight)
+
+
+class PyramidEnvironmentMap(nn.Module):
+    """Lat-long environment map as the exponential of a Laplacian-style pyramid of log-radiance grids:
+    env = exp(Σ_l up(P_l)), P_l of (height, width) / 2^(levels-1-l), bilinearly upsampled (the azimuth
+    wraps around). The coarse levels pool the sparse 1-spp gradients of many texels, so the map is fitted
+    coarse to fine without a schedule; the log keeps it positive over a sun's dynamic range. Same
+    interface as EnvironmentMap (forward(colour_weight), clamp_ is a no-op)."""
+
+    def __init__(self, height: int = 32, width: int = 64, levels: int = 4, init: float = 0.5, min_value: float = 0.01):
+        super().__init__()
+        self.height, self.width, self.min_value = height, width, min_value
+        shapes = [(max(1, height >> (levels - 1 - i)), max(2, width >> (levels - 1 - i))) for i in range(levels)]
+        self.levels = nn.ParameterList([nn.Parameter(torch.zeros(1, 3, h, w)) for h, w in shapes])
+        with torch.no_grad():
+            self.levels[0].fill_(math.log(max(init, min_value)))
+
+    @torch.no_grad()
+    def clamp_(self) -> None:
+        pass
+
+    def log_radiance(self) -> torch.Tensor:
+        out = 0.0
+        for p in self.levels:
+            if p.shape[-2:] == (self.height, self.width):
+                out = out + p
+                continue
+            padded = torch.cat([p[..., -1:], p, p[..., :1]], dim=-1)  # wrap the azimuth before upsampling
+            w = p.shape[-1]
+            up = Fnn.interpolate(padded, scale_factor=(self.height / p.shape[-2], self.width / w), mode="bilinear",
+                                 align_corners=False)
+            pad = (up.shape[-1] - self.width) // 2
+            out = out + up[..., pad:pad + self.width]
+        return out[0].permute(1, 2, 0)
+
+    def forward(self, colour_weight: float = 1.0) -> torch.Tensor:
+        env = torch.exp(self.log_radiance()).clamp_min(self.min_value)
+        return with_colour_weight(env, colour_weight)
+
+
+def with_colour_weight(env: torch.Tensor, colour_weight: float) -> torch.Tensor:
+    """(1 − w)·grey + w·env, grey = the channel mean (w = 0: no hue at all)."""
+    if colour_weight >= 1.0:
+        return env
+    grey = env.mean(dim=2, keepdim=True).expand_as(env)
+    if colour_weight <= 0.0:
+        return grey
+    return (1.0 - colour_weight) * grey + colour_weight * env
 
 
 def colour_weight(epoch: int, total_epochs: int, grey_fraction: float = 0.4, blend_fraction: float = 0.2) -> float:

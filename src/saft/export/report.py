@@ -16,6 +16,7 @@ import base64
 import datetime as _dt
 import html
 import io
+import json
 import logging
 import tempfile
 from pathlib import Path
@@ -23,7 +24,10 @@ from pathlib import Path
 import numpy as np
 
 from saft import __version__
+from saft.appearance.fit import load_appearance
+from saft.appearance.params import linear_to_srgb
 from saft.evaluate import METRIC_LABELS
+from saft.evaluate.appearance import read_appearance_ground_truth, resize_map
 from saft.export import figures
 from saft.export.video import comparison_frames, fps_of, write_mp4
 from saft.io_utils import atomic_write_text, read_image
@@ -248,7 +252,58 @@ def _section_maps(res: Result) -> str:
             items.append((p, f"material/{name} — {caption}"))
     parts = [_figure(_file_png(p), cap, "view" if p.name == "envmap.png" else "map")
              for p, cap in items if p.is_file()]
+    try:   # what phase 3 says the video did not determine (appearance.evidence)
+        note = json.loads((res.folder / "material" / "appearance.json").read_text()).get("undetermined")
+    except (OSError, ValueError):
+        note = None
+    if note:
+        parts.append(f'<p class="note">{html.escape(note)}</p>')
     return "".join(parts) or _none("no texture.png and no material maps")
+
+
+def _srgb(x: np.ndarray) -> np.ndarray:
+    import torch
+
+    return linear_to_srgb(torch.as_tensor(np.ascontiguousarray(x, dtype=np.float32))).numpy()
+
+
+def _better(gtm: dict, key: str, phase3_better: bool) -> str:
+    if abs(gtm["phase3"][key] - gtm["texture_only"][key]) < 1e-9:
+        return "tie"
+    return "phase 3" if phase3_better else "texture only"
+
+
+def _section_appearance_gt(res: Result) -> str | None:
+    """Phase 3 against the scene's appearance ground truth (saft evaluate wrote it into appearance.json):
+    the metrics beside the texture-only baseline and each map | its truth | |error|; None without them."""
+    try:
+        gtm = json.loads((res.folder / "material" / "appearance.json").read_text()).get("ground_truth_metrics")
+    except (OSError, ValueError):
+        gtm = None
+    if not gtm:
+        return None
+    parts = []
+    rows = "".join(f"<tr><td>{html.escape(k)}</td><td class=\"num\">{gtm['phase3'][k]:.3f}</td>"
+                   f"<td class=\"num\">{gtm['texture_only'][k]:.3f}</td>"
+                   f"<td>{_better(gtm, k, better)}</td></tr>" for k, better in gtm["phase3_better"].items())
+    parts.append("<table><tr><th>metric</th><th>phase 3</th><th>texture only</th><th>better</th></tr>"
+                 f"{rows}</table>")
+    gt = read_appearance_ground_truth(gtm["scene"]) if Path(gtm["scene"]).is_dir() else None
+    if gt is None:
+        return "".join(parts) + _none(f"the ground-truth scene {gtm['scene']} is not here: no map comparison")
+    est = load_appearance(res.folder)
+    scale = np.asarray(gtm["phase3"]["diffuse_scale"], np.float32)
+    size = gt.roughness.shape[:2]
+    for name, mine, truth in (("diffuse (× per-channel scale, sRGB)", est.diffuse * scale, gt.base_color),
+                              ("roughness", est.roughness, gt.roughness), ("metallic", est.metallic, gt.metallic)):
+        a, b = np.atleast_3d(resize_map(mine, size)), np.atleast_3d(truth)
+        if name.startswith("diffuse"):
+            a, b = _srgb(np.clip(a, 0, 1)), _srgb(b)
+        err = np.abs(a - b).mean(axis=2, keepdims=True)
+        panel = np.concatenate([np.broadcast_to(x, (*size, 3)) for x in (a, b, err)], axis=1)
+        parts.append(_figure(figures.array_to_png(np.clip(panel, 0, 1)), f"{name}: estimate | truth | |error|",
+                             ""))
+    return "".join(parts)
 
 
 def _spread(items: list, n: int) -> list:
@@ -387,6 +442,9 @@ def build_report_html(res: Result, max_frames: int = 8) -> str:
         ("timings", "Timings", _section_timings(res)),
         ("config", "Config", _section_config(res)),
     ]
+    appearance = _section_appearance_gt(res)
+    if appearance is not None:   # only where saft evaluate scored phase 3 against known maps
+        sections.insert(5, ("appearance", "Appearance against ground truth", appearance))
     name = res.scene_info.get("name", res.folder.name)
     nav = "".join(f'<a href="#{sid}">{html.escape(title)}</a>' for sid, title, _ in sections)
     body = "".join(f'<section id="{sid}"><h2>{html.escape(title)}</h2>{content}</section>'

@@ -19,10 +19,11 @@ NOVEL_VIEW_ANGLE = 45.0  # degrees around the vertical axis through the cloth (t
 
 
 def run_appearance_phase(ctx: PhaseContext, cfg: AppearanceConfig, positions: np.ndarray, triangles: np.ndarray,
-                         uvs: np.ndarray, resume_state: dict | None) -> AppearanceResult:
+                         uvs: np.ndarray, resume_state: dict | None, texture: np.ndarray | None = None) -> AppearanceResult:
     """Fit the appearance to ctx's targets on the frozen motion `positions` (F, V, 3) and save material/.
     Checkpoints through ctx.checkpoint("appearance", state); Ctrl-C through ctx.epoch_done, whose
-    Interrupted leaves fit_appearance through its progress callback after it checkpointed that epoch."""
+    Interrupted leaves fit_appearance through its progress callback after it checkpointed that epoch.
+    texture: the phase-1 texture (sRGB), which maps="guided" starts from."""
     log.info("appearance: profile %s, %d epochs, %s maps, image scale %g, %s frames per epoch",
              cfg.profile, cfg.epochs, cfg.maps, cfg.image_scale, cfg.frames_per_epoch or "all")
     start = int(resume_state["epoch"]) if resume_state else 0
@@ -41,7 +42,8 @@ def run_appearance_phase(ctx: PhaseContext, cfg: AppearanceConfig, positions: np
     result = fit_appearance(positions, triangles, uvs, ctx.camera, ctx.target_rgb.cpu().numpy(),
                             ctx.target_mask.cpu().numpy(), config=cfg, device=ctx.devices.appearance, progress=on_progress,
                             resume_state=resume_state,
-                            checkpoint=lambda app_state: ctx.checkpoint("appearance", app_state))
+                            checkpoint=lambda app_state: ctx.checkpoint("appearance", app_state),
+                            init_texture=texture)
     ctx.progress.end_phase()
     save_appearance(result, ctx.out_dir)
     return result

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from saft.appearance.config import AppearanceConfig, cpu_profile
+from saft.appearance.config import AppearanceConfig, cpu_profile, cuda_profile
 from saft.config_io import from_dict, load_toml, merge_overrides, to_dict
 from saft.device import appearance_device
 from saft.physics import (DEFAULT_DAMPING, DEFAULT_DENSITY, DEFAULT_LOG10_B, DEFAULT_LOG10_S, DEFAULT_LOG10_Y,
@@ -213,7 +213,7 @@ def load_saft_config(path: str | Path | None = None, overrides: list[str] | None
 
     With appearance.profile = "auto", the appearance section starts from the CPU profile when the run
     will be on the CPU (else from the paper's settings) and the user's explicit appearance values are
-    applied on top; the saved config.toml then names the profile it used ("cpu" or "paper").
+    applied on top; the saved config.toml then names the profile it used ("cpu" or "cuda").
     """
     data = load_toml(path) if path else {}
     where = str(path) if path else "config"
@@ -223,7 +223,7 @@ def load_saft_config(path: str | Path | None = None, overrides: list[str] | None
     cfg = from_dict(SaftConfig, data, where)
     if cfg.appearance.profile == "auto":
         on_cpu = appearance_device(cfg.run.device).type == "cpu"
-        base = cpu_profile(AppearanceConfig()) if on_cpu else AppearanceConfig(profile="paper")
+        base = cpu_profile(AppearanceConfig()) if on_cpu else cuda_profile(AppearanceConfig())
         user = {k: v for k, v in data.get("appearance", {}).items() if k != "profile"}
         cfg.appearance = from_dict(AppearanceConfig, {**to_dict(base), **user}, where, "appearance.")
     cfg.appearance.validate()

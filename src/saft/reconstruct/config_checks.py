@@ -65,6 +65,12 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "appearance.checkpoint_every": (0, INF, True),
     "appearance.render_spp": (1, 1_000_000, True),
     "appearance.texel_size": (4, 8192, True),
+    "appearance.gain_grid": (1, 4096, True),
+    "appearance.clusters": (1, 64, True),
+    "appearance.texture_smoothing": (0, INF, True),
+    "appearance.lambda_metallic_l1": (0, INF, True),
+    "appearance.evidence_threshold": (0, INF, True),
+    "appearance.evidence_spp": (1, 1_000_000, True),
 }
 
 # Ranges [lo, hi] given in the config, each with the initial value that must lie in it: the log10

@@ -98,7 +98,7 @@ def _outputs_phase(ctx: PhaseContext, scene: Scene, cfg: SaftConfig) -> None:
 def _appearance_phase(ctx: PhaseContext, scene: Scene, cfg: SaftConfig) -> None:
     positions = ctx.state["positions"].numpy()
     result = run_appearance_phase(ctx, cfg.appearance, positions, scene.template.triangles, scene.template.uvs,
-                                  ctx.state.get("appearance_state"))
+                                  ctx.state.get("appearance_state"), ctx.state["texture"].numpy())
     write_appearance_renders(ctx.out_dir, result, positions, scene.template.triangles, scene.template.uvs,
                              ctx.camera, ctx.target_rgb.cpu().numpy(), ctx.devices.appearance)
     ctx.state.pop("appearance_state", None)

@@ -7,13 +7,22 @@ World frame: y UP (Mitsuba's env-map up axis), the sheet hangs in the x-y plane,
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
 
 import numpy as np
+import torch
 
 from saft.appearance.params import linear_to_srgb
 from saft.appearance.renderer import ClothRenderer
+from saft.evaluate.appearance import APPEARANCE_GT_DIR, write_appearance_ground_truth
+from saft.evaluate.metrics import sample_surface
 from saft.scene.camera import Camera, look_at
+from saft.scene.frames import FrameSequence
+from saft.scene.scene import Scene
+from saft.synthetic.benchmark_scenes import DONE_FILE, GRAVITY, BenchSceneSpec, _write_folder, path_trace, simulate
+from saft.synthetic.fabrics import environment_map, fabric_maps
 from saft.synthetic.hanging_cloth import grid_template
 
 
@@ -107,8 +116,6 @@ def make_scene(n_frames: int = 20, image_size: int = 200, map_size: int = 128, n
 def render_targets(scene: SyntheticScene, spp: int = 128, device="cpu", camera: Camera | None = None,
                    vertices: np.ndarray | None = None):
     """sRGB renders (F, H, W, 3) of the scene's ground-truth appearance and coverage masks (F, H, W)."""
-    import torch
-
     cam = camera or scene.camera
     verts = scene.vertices if vertices is None else vertices
     r = ClothRenderer(scene.triangles, scene.uvs, cam, device=device, map_shape=scene.roughness.shape,
@@ -124,3 +131,68 @@ def render_targets(scene: SyntheticScene, spp: int = 128, device="cpu", camera: 
                              np.full_like(scene.envmap, 10.0), spp=16, seed=f)
         masks.append((cov.max(axis=2) > 1e-3).astype(np.float32))
     return np.stack(rgbs).astype(np.float32), np.stack(masks).astype(np.float32)
+
+
+# ---------------------------------------------------------------------- benchmark scenes with appearance GT
+@dataclass(frozen=True)
+class AppearanceSceneSpec:
+    """A cloth in wind (saft's simulator, benchmark_scenes scenario "a") path-traced with a fabric's maps
+    under the "video" environment; see write_appearance_scene."""
+
+    fabric: str = "plaid"
+    frames: int = 16
+    width: int = 160
+    height: int = 120
+    grid: int = 17                 # template vertices per side
+    size: float = 0.4              # metres
+    frame_dt: float = 0.02
+    spp: int = 64                  # samples per pixel of the video
+    max_depth: int = 3             # direct light with shadows + one indirect bounce
+    map_size: int = 512
+    env_height: int = 64
+    env_width: int = 128
+    seed: int = 0
+
+
+def appearance_camera(spec: AppearanceSceneSpec) -> Camera:
+    """The scenes' camera: in front of the cloth (+z), a little to the right and above (square pixels)."""
+    k = spec.size / 0.4
+    f = 2.2 * spec.height
+    K = np.array([[f, 0, (spec.width - 1) / 2], [0, f, (spec.height - 1) / 2], [0, 0, 1.0]])
+    return look_at((0.3 * k, 0.12 * k, 1.1 * k), (0.0, -0.04 * k, 0.06 * k), (0.0, 1.0, 0.0), K, spec.width,
+                   spec.height)
+
+
+def write_appearance_scene(folder, spec: AppearanceSceneSpec = AppearanceSceneSpec(), device="cpu"):
+    """Simulate, render and write one scene folder with appearance ground truth (native layout, README
+    "Scene format", plus ``appearance_gt/``: base_color.png (sRGB), roughness.png, metallic.png (linear),
+    envmap_video.exr, envmap_unseen.exr (linear radiance), appearance_gt.json; gt_vertices.npy (F, V, 3);
+    gt/frame_*.npy surface samples, so that `saft evaluate` scores the geometry too).
+    A folder already written from this very spec is kept. Returns the folder."""
+    folder = Path(folder)
+    info = {"kind": "appearance", "spec": asdict(spec)}
+    try:
+        if json.loads((folder / DONE_FILE).read_text()) == json.loads(json.dumps(info)):
+            return folder
+    except (OSError, ValueError):
+        pass
+    sim = BenchSceneSpec(grid=spec.grid, size=spec.size, frames=spec.frames, frame_dt=spec.frame_dt, seed=spec.seed)
+    template, positions, held = simulate("a", sim, device)
+    camera = appearance_camera(spec)
+    base, rough, metal = fabric_maps(spec.fabric, spec.map_size, spec.seed)
+    env = environment_map("video", spec.env_height, spec.env_width)
+    rgb, mask = path_trace(template, positions, camera, (base, rough, metal), env, spec.spp, spec.max_depth, spec.seed,
+                           device)
+    scene = Scene(name=f"appearance_{spec.fabric}", template=template, camera=camera,
+                  frames=FrameSequence((), None, spec.width, spec.height), texture=None, pinned=held,
+                  frame_dt=spec.frame_dt, gravity=GRAVITY)
+    unseen = environment_map("unseen", spec.env_height, spec.env_width)
+
+    def extra(tmp: Path) -> None:
+        write_appearance_ground_truth(tmp / APPEARANCE_GT_DIR, base, rough, metal, env, unseen,
+                                      {"fabric": spec.fabric, "max_depth": spec.max_depth})
+
+    rng = np.random.default_rng(spec.seed + 1)
+    gt_points = [sample_surface(p, template.triangles, 4000, rng) for p in positions]
+    _write_folder(folder, scene, rgb, mask, gt_points, positions, info, extra=extra)
+    return folder

@@ -198,29 +198,40 @@ def render_video(template: QuadMesh, positions: np.ndarray, camera: Camera, spec
     albedo = 0.85 * srgb_to_linear(torch.as_tensor(tex)).numpy()
     rough = np.full(tex.shape[:2], 0.75, np.float32)
     metal = np.zeros(tex.shape[:2], np.float32)
-    env = sky_with_sun()
-    renderer = ClothRenderer(template.triangles, template.uvs, camera, device=device, max_depth=spec.max_depth,
-                             map_shape=tex.shape[:2], env_shape=env.shape[:2])
+    return path_trace(template, positions, camera, (albedo, rough, metal), sky_with_sun(), spec.spp, spec.max_depth,
+                      spec.seed, device)
+
+
+def path_trace(template: QuadMesh, positions: np.ndarray, camera: Camera, maps, env: np.ndarray, spp: int,
+               max_depth: int, seed: int = 0, device="cpu") -> tuple[np.ndarray, np.ndarray]:
+    """sRGB frames (F, H, W, 3) of the cloth with maps (base colour linear, roughness, metallic) under the
+    env map, path-traced by Mitsuba, and coverage masks (F, H, W) from saft's rasterizer."""
+    albedo, rough, metal = maps
+    renderer = ClothRenderer(template.triangles, template.uvs, camera, device=device, max_depth=max_depth,
+                             map_shape=rough.shape[:2], env_shape=env.shape[:2])
     rgb = []
     for i, v in enumerate(positions):
         renderer.set_vertices(v)
-        img = renderer.render_numpy(albedo, rough, metal, env, spp=spec.spp, seed=spec.seed * 1000 + i)
+        img = renderer.render_numpy(albedo, rough, metal, env, spp=spp, seed=seed * 1000 + i)
         rgb.append(linear_to_srgb(torch.as_tensor(img)).clamp(0, 1).numpy())
     with torch.no_grad():
         out = render_cloth(torch.tensor(positions, dtype=torch.float32), torch.as_tensor(template.triangles),
-                           torch.as_tensor(template.uvs, dtype=torch.float32), torch.as_tensor(tex), camera)
+                           torch.as_tensor(template.uvs, dtype=torch.float32), torch.zeros(4, 4, 3), camera)
     mask = (out.mask > 0.5).to(torch.float32).numpy()
     return np.stack(rgb).astype(np.float32), mask.reshape(len(positions), camera.height, camera.width)
 
 
 # ------------------------------------------------------------------------------------------- writing
-def _write_folder(final: Path, scene: Scene, rgb, mask, gt_points, positions, info: dict) -> None:
-    """Write one scene folder into a temporary sibling and move it into place (no half-written folder)."""
+def _write_folder(final: Path, scene: Scene, rgb, mask, gt_points, positions, info: dict, extra=None) -> None:
+    """Write one scene folder into a temporary sibling and move it into place (no half-written folder);
+    extra(tmp_folder), if given, writes more files into it first."""
     final.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}-", dir=final.parent))
     try:
         write_native_scene(tmp, scene, rgb, mask, ground_truth=gt_points)
         atomic_save_npy(tmp / "gt_vertices.npy", positions.astype(np.float32))
+        if extra is not None:
+            extra(tmp)
         atomic_write_json(tmp / DONE_FILE, info)
         if final.exists():
             shutil.rmtree(final)

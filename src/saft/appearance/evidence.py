@@ -1,0 +1,68 @@
+"""Does the video determine a material? A per-cluster test after a guided fit (issue 28, "honest output").
+
+A matte cloth never shows a specular highlight, so its roughness (and whether it is metal) cannot be read
+from the video: any value fits the frames as well. For every material cluster of a ``GuidedMaps`` fit we
+compare the image loss over the frames with the fitted material against the same maps with that cluster
+made matte (roughness 1, metallic 0: the texture-only assumption), rendered with the SAME random samples so
+that the Monte Carlo noise cancels in the difference. When the fitted material lowers the whole image loss
+by less than ``threshold`` × the cluster's share of the texture (relative: a cluster of threads covering a
+fifth of the cloth can change only about a fifth of the loss), the data does not insist: the cluster is
+set to matte and marked undetermined.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+import torch
+
+
+@torch.no_grad()
+def cluster_evidence(model, env: torch.Tensor, render: Callable, frames: list[int], loss: Callable,
+                     spp: int = 4, threshold: float = 0.01, dielectric_below: float = 0.05) -> list[dict]:
+    """One dict per cluster: area, fitted roughness / metallic, relative loss gain over matte, determined.
+
+    render(frame, diffuse, roughness, metallic, env, spp, seed) → linear image; loss(frame, image) → scalar.
+    Clusters judged undetermined are set to matte in `model` (in place); determined ones whose metallic
+    is below `dielectric_below` are set to metallic 0 (a few per cent of metal is noise, not a material).
+    """
+    maps = model()
+    vals = {k: v.detach().clone() for k, v in model.cluster_values().items()}
+
+    def total(rough, metal) -> float:
+        return sum(float(loss(f, render(f, maps["diffuse"], rough, metal, env, spp, 7919 + f))) for f in frames)
+
+    fitted = total(maps["roughness"], maps["metallic"])
+    out = []
+    for k in range(model.num_clusters):
+        member = model.members[k]
+        r, m = float(vals["roughness"][k]), float(vals["metallic"][k])
+        if r > 0.9 and m < 0.05:  # already matte: nothing to test
+            out.append({"cluster": k, "area": float(model.area[k]), "roughness": r, "metallic": m,
+                        "gain_over_matte": 0.0, "determined": False})
+            continue
+        rough = maps["roughness"] * (1 - member) + member
+        metal = maps["metallic"] * (1 - member)
+        gain = (total(rough, metal) - fitted) / max(fitted, 1e-12)
+        area = float(model.area[k])
+        out.append({"cluster": k, "area": area, "roughness": r, "metallic": m,
+                    "gain_over_matte": gain, "determined": bool(gain > threshold * area)})
+    for row in out:
+        if not row["determined"]:
+            model.set_matte(row["cluster"])
+            row["roughness"], row["metallic"] = 1.0, 0.0
+        elif row["metallic"] < dielectric_below:
+            model.set_dielectric(row["cluster"])
+            row["metallic"] = 0.0
+    return out
+
+
+def undetermined_note(evidence: list[dict]) -> str | None:
+    """A sentence for appearance.json when some of the cloth's material is not determined by the data."""
+    area = float(np.sum([e["area"] for e in evidence if not e["determined"]]))
+    if area <= 0:
+        return None
+    return (f"{100 * area:.0f} % of the texture (clusters {[e['cluster'] for e in evidence if not e['determined']]}) "
+            "showed no specular evidence in the video: roughness and metallic there are not determined by the "
+            "data and were set to matte (roughness 1, metallic 0)")

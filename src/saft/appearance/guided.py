@@ -1,0 +1,154 @@
+"""Texture-guided material maps (``maps="guided"``): a well-posed parameterisation for few, noisy frames.
+
+The data of a short video cannot tell every material from every light, so the unknowns are cut down to
+what it can determine (issue 28):
+
+* diffuse = clamp((T_s + a·(T − T_s)) · exp(G↑), 0, 1): T is the phase-1 texture (linearised, resampled to
+  S×S: the sharp detail), T_s the same blurred inside each material cluster (its pixel noise averaged
+  away, but also any pattern finer than the blur, such as a weave), a ∈ (0, 1) per cluster a learnt share
+  of the removed detail (the frames decide: noise of frame 0 does not repeat in other frames), G a coarse g×g×3 log-gain grid, bilinearly upsampled (G↑), that divides out the shading and
+  the light's colour baked into T at frame 0 (shading varies at the scale of the folds, not of the texels);
+* roughness and metallic are piecewise constant over K material clusters: k-means (scipy) on the
+  texture's colours, since a thread of one colour is one material. Each cluster has one roughness and one
+  metallic (sigmoid of a free logit): 2K numbers estimated from every pixel of every frame instead of
+  2·S² noisy texels;
+* ``metallic_l1()``: the area-weighted mean metallic, a sparsity prior that keeps clusters dielectric
+  unless the data insists.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+import torch.nn.functional as Fnn
+from scipy.cluster.vq import kmeans2
+from scipy.ndimage import gaussian_filter
+from torch import nn
+
+
+def _logit(p: float) -> float:
+    p = min(max(p, 1e-4), 1 - 1e-4)
+    return math.log(p / (1 - p))
+
+
+def _merge_close(centres: np.ndarray, distance: float) -> np.ndarray:
+    """Greedily merge cluster centres closer than `distance` (k-means splits one noisy colour into several
+    clusters when asked for more than there are; their materials would then be fitted apart from noise)."""
+    groups = [[c] for c in centres]
+    merged = True
+    while merged and len(groups) > 1:
+        merged = False
+        means = np.array([np.mean(g, axis=0) for g in groups])
+        d = np.linalg.norm(means[:, None] - means[None], axis=-1) + np.eye(len(groups)) * 1e9
+        i, j = np.unravel_index(d.argmin(), d.shape)
+        if d[i, j] < distance:
+            groups[min(i, j)] += groups.pop(max(i, j))
+            merged = True
+    return np.array([np.mean(g, axis=0) for g in groups])
+
+
+def material_clusters(texture_linear: np.ndarray, k: int, seed: int = 0, sample: int = 20000,
+                      merge: float = 0.05, min_share: float = 0.03) -> np.ndarray:
+    """(S, S) int labels in [0, k'): k-means on the sRGB-encoded colours (perceptually even) of the texture
+    blurred by σ = S/128 texels (the phase-1 texture carries pixel noise, which would speckle the labels),
+    fitted on a random sample of texels; centres closer than `merge` are merged, clusters of less than
+    `min_share` of the texels (the blends along colour edges) are given to their nearest neighbours and
+    clusters that end up empty are dropped (k' <= k)."""
+    tex = np.asarray(texture_linear, dtype=np.float64)
+    sigma = tex.shape[0] / 128
+    feats = gaussian_filter(np.clip(tex, 0, 1) ** (1 / 2.2), sigma=(sigma, sigma, 0), mode="nearest")
+    flat = feats.reshape(-1, 3)
+    rng = np.random.default_rng(seed)
+    pick = flat[rng.choice(len(flat), min(sample, len(flat)), replace=False)]
+    centres, _ = kmeans2(pick, k, seed=seed, minit="++")
+    centres = _merge_close(centres, merge)
+    d = ((flat[:, None, :] - centres[None]) ** 2).sum(-1)
+    share = np.bincount(d.argmin(1), minlength=len(centres)) / len(flat)
+    if (share >= min_share).any():  # the blend at a colour edge is no material of its own
+        d = d[:, share >= min_share]
+    labels = d.argmin(1)
+    _, labels = np.unique(labels, return_inverse=True)
+    return labels.reshape(tex.shape[:2]).astype(np.int64)
+
+
+def smooth_within_clusters(texture: np.ndarray, labels: np.ndarray, sigma: float) -> np.ndarray:
+    """The texture blurred by σ texels inside each cluster only (normalised convolution, Σ_k blur(T·M_k) /
+    blur(M_k) on M_k): the phase-1 texture's pixel noise is averaged away while the edges between colours
+    (stripes, threads, print) stay sharp."""
+    if sigma <= 0:
+        return texture
+    out = np.zeros_like(texture)
+    for k in range(int(labels.max()) + 1):
+        m = (labels == k).astype(np.float64)
+        num = gaussian_filter(texture * m[..., None], sigma=(sigma, sigma, 0), mode="nearest")
+        den = gaussian_filter(m, sigma=sigma, mode="nearest")[..., None]
+        out += m[..., None] * num / np.maximum(den, 1e-6)
+    return out.astype(texture.dtype)
+
+
+class GuidedMaps(nn.Module):
+    """Maps of S×S texels from the phase-1 texture (module docstring). texture: (St, St, 3) LINEAR."""
+
+    def __init__(self, texture_linear: np.ndarray, size: int = 512, gain_grid: int = 16, clusters: int = 6,
+                 min_roughness: float = 1e-3, init_roughness: float = 0.5, init_metallic: float = 0.1, seed: int = 0,
+                 smoothing: float = 0.0):
+        super().__init__()
+        tex = torch.as_tensor(np.asarray(texture_linear, dtype=np.float32)[..., :3]).permute(2, 0, 1)[None]
+        mode = "area" if tex.shape[-1] > size else "bilinear"
+        tex = Fnn.interpolate(tex, size=(size, size), mode=mode, **({} if mode == "area" else {"align_corners": False}))
+        tex = tex[0].permute(1, 2, 0).clamp(1e-3, 1.0).numpy()
+        labels = material_clusters(tex, clusters, seed)
+        self.register_buffer("texture", torch.as_tensor(smooth_within_clusters(tex, labels, smoothing)))
+        self.register_buffer("detail", torch.as_tensor(tex) - self.texture)   # what the smoothing removed
+        labels = torch.as_tensor(labels)
+        k = int(labels.max()) + 1
+        onehot = Fnn.one_hot(labels, k).permute(2, 0, 1).to(torch.float32)  # (k, S, S)
+        self.register_buffer("members", onehot)
+        self.register_buffer("area", onehot.mean(dim=(1, 2)))
+        self.min_roughness = min_roughness
+        self.gain = nn.Parameter(torch.zeros(1, 3, gain_grid, gain_grid))
+        self.rough_logit = nn.Parameter(torch.full((k,), _logit(init_roughness)))
+        self.metal_logit = nn.Parameter(torch.full((k,), _logit(init_metallic)))
+        # per cluster, how much of the removed detail comes back (sigmoid; starts at one half): the frames
+        # decide whether it was the texture's noise (it does not repeat in other frames) or a real pattern
+        self.detail_logit = nn.Parameter(torch.zeros(k))
+
+    @property
+    def size(self) -> int:
+        return int(self.texture.shape[0])
+
+    @property
+    def num_clusters(self) -> int:
+        return int(self.members.shape[0])
+
+    def cluster_values(self) -> dict[str, torch.Tensor]:
+        return {"roughness": torch.sigmoid(self.rough_logit).clamp_min(self.min_roughness),
+                "metallic": torch.sigmoid(self.metal_logit)}
+
+    def forward(self) -> dict[str, torch.Tensor]:
+        s = self.size
+        gain = Fnn.interpolate(self.gain, size=(s, s), mode="bilinear", align_corners=False)[0].permute(1, 2, 0)
+        vals = self.cluster_values()
+        detail = torch.einsum("k,khw->hw", torch.sigmoid(self.detail_logit), self.members)
+        return {
+            "diffuse": ((self.texture + self.detail * detail[..., None]) * torch.exp(gain)).clamp(0.0, 1.0),
+            "roughness": torch.einsum("k,khw->hw", vals["roughness"], self.members),
+            "metallic": torch.einsum("k,khw->hw", vals["metallic"], self.members),
+        }
+
+    @torch.no_grad()
+    def set_matte(self, k: int) -> None:
+        """Cluster k to roughness 1, metallic 0 (appearance.evidence: the data did not determine it)."""
+        self.rough_logit[k] = 20.0
+        self.metal_logit[k] = -20.0
+
+    @torch.no_grad()
+    def set_dielectric(self, k: int) -> None:
+        """Cluster k to metallic 0 (a fitted metallic of a few per cent is noise, not a material)."""
+        self.metal_logit[k] = -20.0
+
+    def metallic_l1(self) -> torch.Tensor:
+        """Area-weighted mean metallic (the sparsity prior)."""
+        return (self.area * torch.sigmoid(self.metal_logit)).sum()
