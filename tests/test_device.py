@@ -32,6 +32,8 @@ def test_gpu_machine_auto_keeps_each_part_where_it_is_fastest(monkeypatch):
     assert no_mitsuba.render.type == "cuda" and no_mitsuba.appearance.type == "cpu"
     assert "PyTorch rasterizer" in no_mitsuba.why["render"] and "llvm_ad_rgb" in no_mitsuba.why["appearance"]
     assert D.plan_devices("auto", appearance=False, nvdiffrast_ok=True).appearance.type == "cpu"
+    forced_torch = D.plan_devices("auto", rasterizer="torch", nvdiffrast_ok=True, mitsuba_cuda_ok=True)
+    assert "render.backend = torch" in forced_torch.why["render"]
 
 
 def test_gpu_machine_cuda_puts_every_part_on_the_gpu(monkeypatch):

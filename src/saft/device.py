@@ -55,11 +55,12 @@ class DevicePlan:
                 for part in ("physics", "render", "appearance")]
 
 
-def plan_devices(name: str, *, vertices: int | None = None, appearance: bool = True,
+def plan_devices(name: str, *, vertices: int | None = None, appearance: bool = True, rasterizer: str = "auto",
                  nvdiffrast_ok: bool | None = None, mitsuba_cuda_ok: bool | None = None) -> DevicePlan:
     """Per-part devices for run.device = `name` ('auto', 'cpu' or 'cuda').
 
     vertices: the template's vertex count (None: a template of R1's size), for the physics' device.
+    rasterizer: the run's render.backend ('auto', 'torch' or 'nvdiffrast'), named in the renders' line.
     appearance: whether the run has an appearance phase (else Mitsuba is not probed and the part stays on
     the CPU). nvdiffrast_ok / mitsuba_cuda_ok: whether those backends work on this machine's GPU; None =
     probe them (only when a CUDA device is there: nvdiffrast rasterizes a triangle, Mitsuba renders in a
@@ -70,11 +71,12 @@ def plan_devices(name: str, *, vertices: int | None = None, appearance: bool = T
     if render.type == "cpu":
         why = "asked for (--device cpu)" if name == "cpu" else "no CUDA device"
         return DevicePlan(cpu, cpu, cpu, {p: why for p in ("physics", "render", "appearance")})
-    if nvdiffrast_ok is None:
+    if nvdiffrast_ok is None and rasterizer != "torch":
         nvdiffrast_ok = nvdiffrast_status()[0]
     if mitsuba_cuda_ok is None:
         mitsuba_cuda_ok = appearance and _mitsuba_cuda_ok()
-    raster = "nvdiffrast" if nvdiffrast_ok else "the PyTorch rasterizer (nvdiffrast not usable)"
+    raster = ("the PyTorch rasterizer (render.backend = torch)" if rasterizer == "torch" else "nvdiffrast"
+              if nvdiffrast_ok else "the PyTorch rasterizer (nvdiffrast not usable)")
     if name == "cuda":
         return DevicePlan(render, render, render, {
             "physics": "asked for (--device cuda); torch solver",

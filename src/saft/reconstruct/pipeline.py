@@ -142,7 +142,8 @@ def reconstruct(scene: Scene, cfg: SaftConfig, out_dir: str | Path, *, resume: b
     out_dir = Path(out_dir)
     check_config_ranges(cfg)
     check_out_dir(out_dir, scene, resume=resume, overwrite=overwrite)
-    devices = plan_devices(cfg.run.device, vertices=scene.template.num_vertices, appearance=cfg.appearance.enabled)
+    devices = plan_devices(cfg.run.device, vertices=scene.template.num_vertices, appearance=cfg.appearance.enabled,
+                           rasterizer=cfg.render.backend)
     device = devices.render
     for line in devices.lines():
         log.info("device: %s", line)
