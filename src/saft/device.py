@@ -105,10 +105,7 @@ def plan_devices(name: str, *, vertices: int | None = None, appearance: bool = T
 def appearance_device(name: str) -> torch.device:
     """The appearance phase's device for run.device = `name` (what plan_devices says, without the rasterizer
     probe): CUDA when asked for, or with 'auto' when Mitsuba's CUDA variant works here; else the CPU."""
-    device = resolve_device(name)
-    if device.type == "cuda" and name == "auto" and not _mitsuba_cuda_ok():
-        return torch.device("cpu")
-    return device
+    return plan_devices(name, rasterizer="torch").appearance
 
 
 @functools.cache

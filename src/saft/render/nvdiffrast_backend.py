@@ -9,15 +9,14 @@ output is the top of the image.
 
 from __future__ import annotations
 
+import functools
+import sys
 from collections import OrderedDict
 
 import torch
 
 from saft.render.output import RenderOutput
 from saft.render.reference import render_cloth_primitives
-
-
-_STATUS: list = []   # the cached (ok, reason) of nvdiffrast_status
 
 
 def load_nvdiffrast():
@@ -28,8 +27,6 @@ def load_nvdiffrast():
     (ModuleNotFoundError: nvdiffrast_plugin_..._torch2_11_0_cu130). The build folder is put on sys.path
     first, the plugin is built or loaded, and the module is returned.
     """
-    import sys
-
     import nvdiffrast
     import nvdiffrast.torch as dr
     from nvdiffrast.torch import ops
@@ -43,15 +40,10 @@ def load_nvdiffrast():
     return dr
 
 
+@functools.cache
 def nvdiffrast_status() -> tuple[bool, str]:
     """(True, "") when nvdiffrast rasterizes a triangle on this machine's GPU, else (False, why not).
     Checked once per process: the import, the plugin build, a context and one rasterization."""
-    if not _STATUS:
-        _STATUS.append(_probe())
-    return _STATUS[0]
-
-
-def _probe() -> tuple[bool, str]:
     if not torch.cuda.is_available():
         return False, "no CUDA device"
     try:
