@@ -181,15 +181,16 @@ def down2_adjoint_add_(acc: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
     return acc
 
 
-def down2_hwc(t: torch.Tensor) -> torch.Tensor:
-    """down2 of an (h, w, C) level, (h/2, w/2, C) contiguous; even sizes without small-dimension
-    strided operations (rows of 2C floats are contiguous in HWC memory)."""
+def down2_hwc(t: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
+    """down2 of an (h, w, C) level, (h/2, w/2, C) contiguous (or written into out); even sizes without
+    small-dimension strided operations (rows of 2C floats are contiguous in HWC memory)."""
     h, w, C = t.shape
     if h >= 2 and w >= 2 and h % 2 == 0 and w % 2 == 0 and t.is_contiguous():
         r = t.view(h // 2, 2, w // 2, 2 * C)
         r = r[:, 0] + r[:, 1]
-        return (r[..., :C] + r[..., C:]) * 0.25
-    return down2(t.permute(2, 0, 1)).permute(1, 2, 0).contiguous()
+        return torch.mul(r[..., :C] + r[..., C:], 0.25, out=out)
+    d = down2(t.permute(2, 0, 1)).permute(1, 2, 0)
+    return d.contiguous() if out is None else out.copy_(d)
 
 
 def down2_adjoint_add_hwc_(acc: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
