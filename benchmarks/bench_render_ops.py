@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import resource
 import statistics
 import sys
 import time
@@ -123,11 +124,13 @@ def timed(size, device, threads, runs):
     for _ in range(3):
         step()
     cpu = []
+    flt = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
     for _ in range(runs):
         c = time.process_time()
         step()
         cpu.append((time.process_time() - c) * 1000)
-    return statistics.median(cpu), min(cpu)
+    flt = (resource.getrusage(resource.RUSAGE_SELF).ru_minflt - flt) / runs
+    return statistics.median(cpu), min(cpu), flt
 
 
 def main(argv=None) -> int:
@@ -158,8 +161,9 @@ def main(argv=None) -> int:
         lines.append(f"render_syncs_{size}={sf}+{sb}")
         if args.time:
             for t in (int(x) for x in args.threads.split(",")):
-                med, best = timed(size, device, t, args.runs)
-                print(f"   {size} threads={t}: CPU ms median {med:.2f}, min {best:.2f} ({args.runs} runs)",
+                med, best, flt = timed(size, device, t, args.runs)
+                print(f"   {size} threads={t}: CPU ms median {med:.2f}, min {best:.2f} ({args.runs} runs), "
+                      f"{flt:.0f} page faults per step (first touches of memory the allocator got anew)",
                       flush=True)
                 lines.append(f"render_cpu_ms_{size}_t{t}={med:.2f}")
     print("\n".join(lines))

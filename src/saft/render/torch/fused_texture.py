@@ -20,7 +20,7 @@ _PYRAMID: list = [None]  # (weakref to the texture, its _version, n_levels, flat
 
 def _geometry(Ht: int, Wt: int, C: int, n_levels: int, like: torch.Tensor):
     """Per mip level of an (Ht, Wt, C) texture: sizes [(h, w)], flat offsets (in texels) and two device
-    tables, made once per shape: gf (4, n) float (w, h, max(w − 2, 0), max(h − 2, 0)) and gi (n, 4) int64,
+    tables, made once per shape: gf (4, n) float (w, h, max(w − 2, 0), max(h − 2, 0)) and gi (4, n) int32,
     the texel offsets of the four bilinear taps (00, 01, 10, 11) plus the level's offset (clamp-to-edge:
     a level one texel wide or high repeats its only column or row)."""
     key = (Ht, Wt, C, n_levels, like.dtype, like.device)
@@ -38,7 +38,7 @@ def _geometry(Ht: int, Wt: int, C: int, n_levels: int, like: torch.Tensor):
         for (h, w), base in zip(sizes, offs):
             ox, oy = (1 if w >= 2 else 0), (w if h >= 2 else 0)
             taps.append([base, base + ox, base + oy, base + oy + ox])
-        gi = torch.tensor(taps, dtype=torch.int64, device=like.device)
+        gi = torch.tensor(taps, dtype=torch.int32, device=like.device).T.contiguous()
         g = _GEOMETRY[key] = (sizes, offs, o, gf, gi)
     return g
 
@@ -49,23 +49,27 @@ def _pyramid(tex: torch.Tensor, sizes, offs, total: int) -> torch.Tensor:
     phase renders every frame with the same texture."""
     C = tex.shape[2]
     if len(sizes) == 1 and tex.is_contiguous():
-        return tex.reshape(-1)
+        return tex.detach().reshape(-1)
     hit = _PYRAMID[0]
     if hit is not None and hit[0]() is tex and hit[1] == tex._version and hit[2] == len(sizes):
         return hit[3]
+    key = (weakref.ref(tex), tex._version, len(sizes))
+    tex = tex.detach()
     flat = tex.new_empty(total * C)
     flat[:tex.numel()].copy_(tex.reshape(-1))
     for k in range(1, len(sizes)):  # each level from the one before, into its slice of the flat buffer
         (h0, w0), (h, w) = sizes[k - 1], sizes[k]
         down2_hwc(flat[offs[k - 1] * C:(offs[k - 1] + h0 * w0) * C].view(h0, w0, C),
                   out=flat[offs[k] * C:(offs[k] + h * w) * C].view(h, w, C))
-    _PYRAMID[0] = (weakref.ref(tex), tex._version, len(sizes), flat)
+    _PYRAMID[0] = key + (flat,)
     return flat
 
 
 class _TexFn(torch.autograd.Function):
     """Trilinear (or bilinear) lookup: tex (Ht, Wt, C), u, v (P,), lo (P,) int64 and frac (P,) (or None:
-    level 0 only) → (C, P). Taps and weights (levels, 4, P), values (C, levels, 4, P). Hand-written backward:
+    level 0 only) → (C, P). Taps and weights (4, levels, P), values (C, 4, levels, P), every index and
+    weight computed in a contiguous layout (a broadcast add into a transposed one costs more than the
+    lookup on CPU). Hand-written backward:
     one index_add into the flat pyramid's gradient, the pyramid's adjoint, and the coordinate gradient."""
 
     @staticmethod
@@ -73,7 +77,7 @@ class _TexFn(torch.autograd.Function):
         Ht, Wt, C = tex.shape
         P = u.shape[0]
         sizes, offs, total, gf, gi = _geometry(Ht, Wt, C, n_levels, u)
-        flat = _pyramid(tex.detach(), sizes, offs, total)
+        flat = _pyramid(tex, sizes, offs, total)  # tex itself: the cache knows it by identity
         if lo is None:
             L = torch.zeros(1, P, dtype=torch.int64, device=u.device)
         else:  # the upper level of a pixel on the last one gets weight frac = 0
@@ -91,16 +95,17 @@ class _TexFn(torch.autograd.Function):
         y0f = torch.minimum(y.floor(), hm)
         fx = x - x0f
         fy = y - y0f
-        idx = (y0f * w_ + x0f).long()[:, None] + gi.index_select(0, Lf).view(nl, P, 4).transpose(1, 2)
+        # int32 indices (texel·C + channel < 2**31 up to 8192² RGB): the largest temporaries here, and on
+        # CPU every large fresh allocation costs page faults
+        idx = (y0f * w_ + x0f).int() + gi.index_select(1, Lf).view(4, nl, P)  # (4 taps, levels, P)
         gx, gy = 1.0 - fx, 1.0 - fy
-        bw = torch.stack([gx * gy, fx * gy, gx * fy, fx * fy], dim=1)  # (levels, 4, P)
+        bw = torch.stack([gx * gy, fx * gy, gx * fy, fx * fy])  # (4, levels, P)
         if lo is not None:
-            bw *= torch.stack([1.0 - frac, frac])[:, None]
+            bw *= torch.stack([1.0 - frac, frac])
         bw = bw.to(tex.dtype)
-        cidx = torch.empty((C, nl, 4, P), dtype=torch.int64, device=u.device)  # contiguous: idx is not
-        torch.add(idx[None] * C, torch.arange(C, device=u.device).view(C, 1, 1, 1), out=cidx)
-        tv = flat.index_select(0, cidx.view(-1)).view(C, nl, 4, P)
-        val = (tv * bw).sum(2)
+        cidx = idx * C + torch.arange(C, dtype=torch.int32, device=u.device).view(C, 1, 1, 1)
+        tv = flat.index_select(0, cidx.view(-1)).view(C, 4, nl, P)
+        val = (tv * bw).sum(1)
         out = val[:, 0] if nl == 1 else val[:, 0] + val[:, 1]
         ctx.save_for_backward(cidx, fx, fy, insx, insy, bw, tv, w_, h_, frac if lo is not None else None)
         ctx.geo = (sizes, offs, total, C)
@@ -123,10 +128,10 @@ class _TexFn(torch.autograd.Function):
                                        gflat[offs[k] * C:(offs[k] + h * w) * C].view(h, w, C))
             g_tex = gflat[:sizes[0][0] * sizes[0][1] * C].view(sizes[0][0], sizes[0][1], C)
         if need_u or need_v:
-            gd = (tv * g[:, None, None]).sum(0).to(fx.dtype)  # (levels, 4, P): <g, texel k>
+            gd = (tv * g[:, None, None]).sum(0).to(fx.dtype)  # (4, levels, P): <g, texel k>
             if frac is not None:
-                gd *= torch.stack([1.0 - frac, frac])[:, None]
-            g0, g1, g2, g3 = gd.unbind(1)
+                gd *= torch.stack([1.0 - frac, frac])
+            g0, g1, g2, g3 = gd.unbind(0)
 
             def level_sum(d):
                 return d[0] if d.shape[0] == 1 else d[0] + d[1]
