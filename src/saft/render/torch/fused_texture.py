@@ -45,13 +45,16 @@ def _geometry(Ht: int, Wt: int, C: int, n_levels: int, like: torch.Tensor):
 
 def _pyramid(tex: torch.Tensor, sizes, offs, total: int) -> torch.Tensor:
     """All levels of tex's box-filtered mip pyramid in one flat buffer (level k at offs[k] texels, HWC).
-    The last one made is kept while its texture is unchanged (same object, same _version): the shape
-    phase renders every frame with the same texture."""
+    For a texture without gradient (the shape phase renders every frame with the same one) the last
+    pyramid is kept while the texture is unchanged: same object, same _version (a change through .data
+    would not be seen; gradcheck makes such changes to the inputs it differentiates, hence no caching of
+    a texture that requires grad, which the texture phase changes every step anyway)."""
     C = tex.shape[2]
     if len(sizes) == 1 and tex.is_contiguous():
         return tex.detach().reshape(-1)
+    cache = not tex.requires_grad
     hit = _PYRAMID[0]
-    if hit is not None and hit[0]() is tex and hit[1] == tex._version and hit[2] == len(sizes):
+    if cache and hit is not None and hit[0]() is tex and hit[1] == tex._version and hit[2] == len(sizes):
         return hit[3]
     key = (weakref.ref(tex), tex._version, len(sizes))
     tex = tex.detach()
@@ -61,7 +64,8 @@ def _pyramid(tex: torch.Tensor, sizes, offs, total: int) -> torch.Tensor:
         (h0, w0), (h, w) = sizes[k - 1], sizes[k]
         down2_hwc(flat[offs[k - 1] * C:(offs[k - 1] + h0 * w0) * C].view(h0, w0, C),
                   out=flat[offs[k] * C:(offs[k] + h * w) * C].view(h, w, C))
-    _PYRAMID[0] = key + (flat,)
+    if cache:
+        _PYRAMID[0] = key + (flat,)
     return flat
 
 
