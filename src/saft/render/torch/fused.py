@@ -16,10 +16,11 @@ import math
 import torch
 
 from saft.render.output import RenderOutput, no_normals, vertex_normals
+from saft.render.topology import topology
 from saft.render.torch.antialias import antialias_core
 from saft.render.torch.raster import W_EPS, visibility
-from saft.render.torch.rows import ScatterPlanar, scatter_rows
 from saft.render.torch.fused_texture import texture_fast
+from saft.render.torch.rows import ScatterPlanar, const, scatter_rows
 
 # In clip space the (unnormalised) perspective-correct barycentric of
 # vertex k at the pixel whose ray has NDC (nx, ny) is c_k = X_i Y_j − X_j Y_i (i, j = k+1, k+2) with
@@ -39,32 +40,26 @@ def plane_table(pos: torch.Tensor, tri: torch.Tensor, uv: torch.Tensor, normals:
     Differentiable (plain autograd: it is per triangle, not per pixel)."""
     B = pos.shape[0]
     T = tri.shape[0]
-    tf = tri.reshape(-1)
+    tf = topology(tri).tri.reshape(-1)
     p = pos.index_select(1, tf).reshape(B, T, 3, 4)  # index_select: its backward is an index_add
-    x, y, z, w = p.unbind(-1)  # (B, T, 3)
+    w = p[..., 3]  # (B, T, 3)
     with torch.no_grad():
-        sw = w.sum(-1)
-        ok = sw.abs() > W_EPS
-        sw = torch.where(ok, sw, torch.ones_like(sw))
-        rx = torch.where(ok, x.sum(-1) / sw, torch.zeros_like(sw))
-        ry = torch.where(ok, y.sum(-1) / sw, torch.zeros_like(sw))
-    X = x - rx[..., None] * w
-    Y = y - ry[..., None] * w
-    Xi, Yi, wi = X.roll(-1, -1), Y.roll(-1, -1), w.roll(-1, -1)
-    Xj, Yj, wj = X.roll(-2, -1), Y.roll(-2, -1), w.roll(-2, -1)
-    alpha = Xi * Yj - Xj * Yi  # (B, T, 3): c_k at (rx, ry)
-    beta = wj * Yi - wi * Yj  # dc_k/dnx
-    gamma = Xj * wi - Xi * wj  # dc_k/dny
-    cm = torch.stack([alpha, beta, gamma], dim=-2)  # (B, T, 3 coef, 3 vertex)
+        s4 = p.sum(2)  # (B, T, x|y|z|w)
+        ok = s4[..., 3:].abs() > W_EPS
+        r = torch.where(ok, s4[..., :2] / s4[..., 3:].masked_fill(~ok, 1.0), 0.0)  # (B, T, 2): rx, ry
+    XY = p[..., :2] - r[:, :, None] * w[..., None]  # (B, T, 3 vertices, X|Y)
+    # rows (X, Y, w) over the three vertices: c = X × Y (α, c_k at (rx, ry)), Y × w (β = dc/dnx) and
+    # w × X (γ = dc/dny), one cross product of the rows with the rows rolled by one
+    M = torch.cat([XY.transpose(-1, -2), w[:, :, None]], dim=-2)  # (B, T, 3 rows, 3 vertices)
+    cm = torch.linalg.cross(M, M.roll(-1, -2), dim=-1)  # (B, T, 3 coef, 3 vertex)
     if uv.dim() == 2:
         uv = uv[None]
-    attr = torch.cat([uv.expand(B, -1, -1), pos[..., 3:4], normals], dim=-1)
-    attr = attr.index_select(1, tf).reshape(B, T, 3, 6)
-    num = cm @ attr  # (B, T, 3, 6): u, v, w, n
-    s = cm.sum(-1, keepdim=True)
-    cz = (cm * z[:, :, None, :]).sum(-1, keepdim=True)
-    tab = torch.cat([s, num, cm[..., 0:2], cz], dim=-1)  # (B, T, 3, 10) in PLANE_COLS order
-    return torch.cat([rx.reshape(B * T, 1), ry.reshape(B * T, 1), tab.reshape(B * T, 3 * _NP)], dim=1)
+    # per triangle vertex the columns PLANE_COLS multiply c by: 1, u, v, w, n, e0, e1 (c0, c1 themselves), z
+    attr = torch.cat([uv.expand(B, -1, -1), pos[..., 3:4], normals, pos[..., 2:3]], dim=-1)
+    attr = attr.index_select(1, tf).reshape(B, T, 3, 7)
+    k = const(((1.0, 1.0, 0.0), (1.0, 0.0, 1.0), (1.0, 0.0, 0.0)), attr).expand(B, T, 3, 3)
+    tab = cm @ torch.cat([k[..., :1], attr[..., :6], k[..., 1:], attr[..., 6:]], dim=-1)  # (B, T, 3, 10)
+    return torch.cat([r.reshape(B * T, 2), tab.reshape(B * T, 3 * _NP)], dim=1)
 
 
 class _PlaneFn(torch.autograd.Function):
@@ -75,26 +70,27 @@ class _PlaneFn(torch.autograd.Function):
     @staticmethod
     def forward(ctx, table, idx, nx, ny, H, W):
         ctx.set_materialize_grads(False)
-        tt = table.T.contiguous()
-        g = tt.new_empty(tt.shape[0], idx.shape[0])  # (32, P): one 1-D gather per row (much faster on CPU
-        for r in range(tt.shape[0]):  # than index_select along dim 1 or a transpose of a row gather)
-            torch.index_select(tt[r], 0, idx, out=g[r])
+        # (32, P): one gather, rows contiguous over pixels (with torch 2.13 on CPU faster than one 1-D
+        # gather per row: 1.9 vs 2.2 ms at 200k pixels, measured)
+        g = table.T.contiguous().index_select(1, idx)
         dx = nx - g[0]
         dy = ny - g[1]
         a, b, c = g[2:2 + _NP], g[2 + _NP:2 + 2 * _NP], g[2 + 2 * _NP:]
         num = torch.addcmul(a, b, dx)
         num.addcmul_(c, dy)  # (10, P)
         s = num[0]
-        inv_s = torch.where(s == 0, torch.ones_like(s), s).reciprocal_()
+        inv_s = s.masked_fill(s == 0, 1.0).reciprocal_()
         vals = num[1:9] * inv_s  # u, v, w, n0, n1, n2, bw0, bw1
         uv, depth, nrm, bw = vals[0:2], vals[2], vals[3:6], vals[6:8]
         cw = num[3]
-        zw = num[9] / torch.where(cw == 0, torch.ones_like(cw), cw)
-        # screen derivatives of u and v: d(N/s) = (dN − (N/s) ds)/s, NDC → pixels: ×2/W, ×2/H
-        sx, sy = inv_s * (2.0 / W), inv_s * (2.0 / H)
-        uv_da = torch.empty(4, uv.shape[1], dtype=uv.dtype, device=uv.device)
-        for r, (d, k, sc) in enumerate(((b, 1, sx), (c, 1, sy), (b, 2, sx), (c, 2, sy))):
-            torch.mul(torch.addcmul(d[k], uv[k - 1], d[0], value=-1.0), sc, out=uv_da[r])
+        zw = num[9] / cw.masked_fill(cw == 0, 1.0)
+        # screen derivatives of u and v: d(N/s) = (dN − (N/s) ds)/s, NDC → pixels: ×2/W, ×2/H; as
+        # (dX|dY, u|v, P) = (b|c rows 1, 2 − (u, v)·(b|c row 0))·(2/W | 2/H) / s, written as (u|v, dX|dY, P)
+        bc = g[2 + _NP:].view(2, _NP, -1)
+        sxy = inv_s * const((2.0 / W, 2.0 / H), inv_s).view(2, 1)
+        uv_da = torch.empty(2, 2, uv.shape[1], dtype=uv.dtype, device=uv.device)
+        torch.mul(bc[:, 1:3] - uv[None] * bc[:, 0:1], sxy[:, None], out=uv_da.transpose(0, 1))
+        uv_da = uv_da.view(4, -1)
         ctx.mark_non_differentiable(bw, zw, uv_da)
         ctx.save_for_backward(idx, dx, dy, inv_s, vals)
         ctx.m = table.shape[0]
