@@ -59,6 +59,9 @@ class _Count(TorchDispatchMode):
 
     def __torch_dispatch__(self, func, types, args=(), kwargs=None):
         name = func.overloadpacket.__name__
+        if name in ("index", "index_put", "index_put_") and any(
+                isinstance(i, torch.Tensor) and i.dtype == torch.bool for i in (args[1] or ())):
+            name += "[bool mask: nonzero inside]"  # a host sync like nonzero
         key = name
         if self.by == "site":
             key = f"{name} @ {_site()}"
@@ -114,7 +117,7 @@ def count(size, device, by):
 def split(ops):
     launches = sum(n for k, n in ops.items() if k.split(" @ ")[0] not in _VIEWS)
     views = sum(ops.values()) - launches
-    syncs = sum(n for k, n in ops.items() if k.split(" @ ")[0] in _SYNCS)
+    syncs = sum(n for k, n in ops.items() if k.split(" @ ")[0] in _SYNCS or "bool mask" in k)
     return launches, views, syncs
 
 
