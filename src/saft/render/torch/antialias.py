@@ -21,7 +21,7 @@ def screen_xy(pos: torch.Tensor, H: int, W: int) -> torch.Tensor:
     vertex of pos (B, V, 4); differentiable."""
     p = pos.reshape(-1, 4)
     w = p[:, 3:4]
-    w = torch.where(w.abs() < W_EPS, W_EPS, w)
+    w = w.masked_fill(w.abs() < W_EPS, W_EPS)
     return (p[:, :2] / w + 1.0) * const((0.5 * W, 0.5 * H), p) - 0.5
 
 
@@ -104,17 +104,18 @@ def antialias_core(color, tid_img, depth_img, pos, tri, split=False):
         fj = rem - fi * W
         fq = torch.where(axis == 0, fi, fj).to(xy.dtype)  # the line crossed: row or column
         fp = torch.where(axis == 0, fj, fi).to(xy.dtype)  # the pixel's coordinate along the pair
-        sgn = torch.where(po > pf, 1.0, -1.0).to(xy.dtype)
-        tpar = (fq - PQ[1]) / torch.where(dQ == 0, 1.0, dQ)
+        sgn = (po > pf).to(xy.dtype) * 2.0 - 1.0
+        tpar = (fq - PQ[1]) / dQ.masked_fill(dQ == 0, 1.0)
         tt = (PQ[0] + tpar * dP - fp) * sgn
         ok = sil.index_select(0, bt).T & major & (tpar >= 0) & (tpar <= 1) & (tt >= 0) & (tt <= 1)
         has = ok.any(0)
+        no = ~has
         k_first = ok.to(torch.uint8).argmax(0)  # the first edge that qualifies
         e = vk.gather(0, torch.stack([k_first, (k_first + 1) % 3]))  # (2, K) its end points
         eidx = (2 * e[None] + pq).view(-1)  # (P|Q, end 0|1, K)
     P0, P1, Q0, Q1 = xy.view(-1).index_select(0, eidx).view(4, K).unbind(0)
-    tt = (P0 + (fq - Q0) / torch.where(has, Q1 - Q0, 1.0) * (P1 - P0) - fp) * sgn
-    f = torch.where(has, tt - 0.5, 0.0)  # > 0: the front triangle reaches into the other pixel; < 0: it
+    tt = (P0 + (fq - Q0) / (Q1 - Q0).masked_fill(no, 1.0) * (P1 - P0) - fp) * sgn
+    f = (tt - 0.5).masked_fill(no, 0.0)  # > 0: the front triangle reaches into the other pixel; < 0: it
     # leaves part of its own; 0 (no edge crosses): the blend adds 0
     dt = color[0].dtype if split else color.dtype
     args = (f.to(dt), pf, po, torch.where(f.detach() > 0, po, pf))

@@ -46,7 +46,8 @@ def plane_table(pos: torch.Tensor, tri: torch.Tensor, uv: torch.Tensor, normals:
     with torch.no_grad():
         s4 = p.sum(2)  # (B, T, x|y|z|w)
         ok = s4[..., 3:].abs() > W_EPS
-        r = torch.where(ok, s4[..., :2] / s4[..., 3:].masked_fill(~ok, 1.0), 0.0)  # (B, T, 2): rx, ry
+        nok = ~ok
+        r = (s4[..., :2] / s4[..., 3:].masked_fill(nok, 1.0)).masked_fill(nok, 0.0)  # (B, T, 2): rx, ry
     XY = p[..., :2] - r[:, :, None] * w[..., None]  # (B, T, 3 vertices, X|Y)
     # rows (X, Y, w) over the three vertices: c = X × Y (α, c_k at (rx, ry)), Y × w (β = dc/dnx) and
     # w × X (γ = dc/dny), one cross product of the rows with the rows rolled by one

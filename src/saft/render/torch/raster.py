@@ -59,7 +59,7 @@ def visibility(pos: torch.Tensor, tri: torch.Tensor, resolution: tuple[int, int]
     area2 = A[:, 0] * xy[0, :, 0] + Bc[:, 0] * xy[1, :, 0] + C[:, 0]
     a2 = area2.abs()
     ok &= (a2 > 1e-12) & (z.amin(1) <= 1) & (z.amax(1) >= -1)  # degenerate or wholly beyond near or far
-    ABC = torch.stack([A, Bc, C]) * torch.where(area2 < 0, -1.0, 1.0)[None, :, None]  # (3, B, 3, T), inside ≥ 0
+    ABC = torch.stack([A, Bc, C]) * area2.sign()[None, :, None]  # (3, B, 3, T), inside ≥ 0 (area 0: culled)
     zm = ABC * z
     zABC = (zm[:, :, 0] + zm[:, :, 1] + zm[:, :, 2]) / a2.clamp_min(1e-30)  # z/w is affine in screen space
     lo = torch.ceil(xy.amin(2) - _EDGE_EPS).clamp_min(0)  # (x|y, B, T) pixel bounding box
@@ -80,11 +80,11 @@ def visibility(pos: torch.Tensor, tri: torch.Tensor, resolution: tuple[int, int]
     Ai, Bi, Ci = tab[0:3], tab[3:6], tab[6:9]
     num = -(Bi * row + Ci)  # inside ⇔ A x ≥ num for all three edges
     a0 = Ai == 0
-    bound = num / torch.where(a0, 1.0, Ai)
-    xl = torch.ceil(torch.where(Ai > 0, bound, -math.inf).amax(0) - _EDGE_EPS).clamp_min(0)
-    xr = torch.floor(torch.where(Ai < 0, bound, math.inf).amin(0) + _EDGE_EPS).clamp_max(W - 1)
+    bound = num / Ai.masked_fill(a0, 1.0)
+    xl = torch.ceil(bound.masked_fill(Ai <= 0, -math.inf).amax(0) - _EDGE_EPS).clamp_min(0)
+    xr = torch.floor(bound.masked_fill(Ai >= 0, math.inf).amin(0) + _EDGE_EPS).clamp_max(W - 1)
     flat_bad = (a0 & (num > _EDGE_EPS * Bi.abs())).any(0)
-    span = torch.where(flat_bad, 0.0, (xr - xl + 1).clamp_min(0)).long()
+    span = (xr - xl + 1).clamp_min(0).masked_fill(flat_bad, 0.0).long()
     N = int(span.sum())
     if N == 0:
         e = torch.zeros(0, dtype=torch.int64, device=dev)
