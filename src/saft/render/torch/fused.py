@@ -147,9 +147,7 @@ def render_cloth_fused(vertices, pos, tri, uv, tex, H, W, max_mip_level, shading
             row_idx = b * T + tid
             rem = pix - b * (H * W)
         prow = torch.div(rem, W, rounding_mode="floor")
-        pcol = rem - prow * W
-        nx = (2.0 * pcol.to(pos.dtype) + 1.0) / W - 1.0
-        ny = (2.0 * prow.to(pos.dtype) + 1.0) / H - 1.0
+        nx, ny = (2.0 * torch.stack([rem - prow * W, prow]).to(pos.dtype) + 1.0) / const((W, H), pos).view(2, 1) - 1.0
     uv_tex = torch.stack([uv[:, 0], 1.0 - uv[:, 1]], dim=-1)
     normals_v = vertex_normals(vertices, tri) if shading is None else shading
     table = plane_table(pos, tri, uv_tex, normals_v)

@@ -15,6 +15,7 @@ from saft.render.torch.rows import const
 from saft.render.torch.texture import down2_adjoint_add_hwc_, down2_hwc, mip_count
 
 _GEOMETRY: dict = {}
+_WORKSPACE: dict = {}
 _PYRAMID: list = [None]  # (weakref to the texture, its _version, n_levels, flat pyramid): the last one made
 
 
@@ -43,6 +44,17 @@ def _geometry(Ht: int, Wt: int, C: int, n_levels: int, like: torch.Tensor):
     return g
 
 
+def _workspace(name: str, n: int, like: torch.Tensor) -> torch.Tensor:
+    """A buffer of n elements of like's dtype and device kept for the next call of the same size: on CPU a
+    fresh multi-megabyte buffer per call costs about one page fault per 4 kB (measured: ~1000 per
+    render at 240x320). One per name; a new size replaces it."""
+    key = (name, like.dtype, like.device)
+    buf = _WORKSPACE.get(key)
+    if buf is None or buf.numel() != n:
+        buf = _WORKSPACE[key] = like.new_empty(n)
+    return buf
+
+
 def _pyramid(tex: torch.Tensor, sizes, offs, total: int) -> torch.Tensor:
     """All levels of tex's box-filtered mip pyramid in one flat buffer (level k at offs[k] texels, HWC).
     For a texture without gradient (the shape phase renders every frame with the same one) the last
@@ -58,7 +70,10 @@ def _pyramid(tex: torch.Tensor, sizes, offs, total: int) -> torch.Tensor:
         return hit[3]
     key = (weakref.ref(tex), tex._version, len(sizes))
     tex = tex.detach()
-    flat = tex.new_empty(total * C)
+    if cache:
+        flat = tex.new_empty(total * C)
+    else:  # rewritten by every call (the backward does not read it)
+        flat = _workspace("pyramid", total * C, tex)
     flat[:tex.numel()].copy_(tex.reshape(-1))
     for k in range(1, len(sizes)):  # each level from the one before, into its slice of the flat buffer
         (h0, w0), (h, w) = sizes[k - 1], sizes[k]
@@ -125,12 +140,15 @@ class _TexFn(torch.autograd.Function):
         g = g.contiguous()  # (C, P)
         g_tex = gu = gv = None
         if need_tex:
-            gflat = g.new_zeros(total * C).index_add_(0, cidx.view(-1), (bw * g[:, None, None]).view(-1))
+            # into a workspace zeroed in place (a fresh 4 MB buffer per call costs ~1000 page faults on
+            # CPU), then level 0 copied out as the texture's gradient
+            gflat = _workspace("grad", total * C, g).zero_()
+            gflat.index_add_(0, cidx.view(-1), (bw * g[:, None, None]).view(-1))
             for k in range(len(sizes) - 1, 0, -1):  # coarse to fine: add each level's adjoint
                 (h0, w0), (h, w) = sizes[k - 1], sizes[k]
                 down2_adjoint_add_hwc_(gflat[offs[k - 1] * C:(offs[k - 1] + h0 * w0) * C].view(h0, w0, C),
                                        gflat[offs[k] * C:(offs[k] + h * w) * C].view(h, w, C))
-            g_tex = gflat[:sizes[0][0] * sizes[0][1] * C].view(sizes[0][0], sizes[0][1], C)
+            g_tex = gflat[:sizes[0][0] * sizes[0][1] * C].view(sizes[0][0], sizes[0][1], C).clone()
         if need_u or need_v:
             gd = (tv * g[:, None, None]).sum(0).to(fx.dtype)  # (4, levels, P): <g, texel k>
             if frac is not None:
