@@ -48,8 +48,9 @@ def vertex_normals(vertices: torch.Tensor, tri: torch.Tensor) -> torch.Tensor:
     """(B, V, 3) unit area-weighted vertex normals (right-hand rule on the triangle winding)."""
     B, T = vertices.shape[0], tri.shape[0]
     tft = topology(tri).tri_flat_t  # tri.T.reshape(-1), made once per triangle list
-    v = vertices.index_select(1, tft).reshape(B, 3, T, 3)  # index_select: index_add backward
-    fn = torch.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0], dim=-1)  # length = 2·area
+    # index_select: an index_add backward; unbind: one stack (three selects would zero-fill and copy each)
+    v0, v1, v2 = vertices.index_select(1, tft).reshape(B, 3, T, 3).unbind(1)
+    fn = torch.cross(v1 - v0, v2 - v0, dim=-1)  # length = 2·area
     n = torch.zeros_like(vertices).index_add(1, tft, fn.repeat(1, 3, 1))
     return n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 

@@ -42,24 +42,26 @@ def plane_table(pos: torch.Tensor, tri: torch.Tensor, uv: torch.Tensor, normals:
     T = tri.shape[0]
     tf = topology(tri).tri.reshape(-1)
     p = pos.index_select(1, tf).reshape(B, T, 3, 4)  # index_select: its backward is an index_add
-    w = p[..., 3]  # (B, T, 3)
+    # unbind, stack and cat, not slices: their backwards are views and one stack, where every slice of a
+    # tensor with gradient would zero-fill and copy
+    x, y, z, w = p.unbind(-1)  # (B, T, 3)
     with torch.no_grad():
         s4 = p.sum(2)  # (B, T, x|y|z|w)
         ok = s4[..., 3:].abs() > W_EPS
         nok = ~ok
         r = (s4[..., :2] / s4[..., 3:].masked_fill(nok, 1.0)).masked_fill(nok, 0.0)  # (B, T, 2): rx, ry
-    XY = p[..., :2] - r[:, :, None] * w[..., None]  # (B, T, 3 vertices, X|Y)
+        rx, ry = r[..., 0:1], r[..., 1:2]
     # rows (X, Y, w) over the three vertices: c = X × Y (α, c_k at (rx, ry)), Y × w (β = dc/dnx) and
     # w × X (γ = dc/dny), one cross product of the rows with the rows rolled by one
-    M = torch.cat([XY.transpose(-1, -2), w[:, :, None]], dim=-2)  # (B, T, 3 rows, 3 vertices)
+    M = torch.stack([x - rx * w, y - ry * w, w], dim=-2)  # (B, T, 3 rows, 3 vertices)
     cm = torch.linalg.cross(M, M.roll(-1, -2), dim=-1)  # (B, T, 3 coef, 3 vertex)
     if uv.dim() == 2:
         uv = uv[None]
     # per triangle vertex the columns PLANE_COLS multiply c by: 1, u, v, w, n, e0, e1 (c0, c1 themselves), z
-    attr = torch.cat([uv.expand(B, -1, -1), pos[..., 3:4], normals, pos[..., 2:3]], dim=-1)
-    attr = attr.index_select(1, tf).reshape(B, T, 3, 7)
-    k = const(((1.0, 1.0, 0.0), (1.0, 0.0, 1.0), (1.0, 0.0, 0.0)), attr).expand(B, T, 3, 3)
-    tab = cm @ torch.cat([k[..., :1], attr[..., :6], k[..., 1:], attr[..., 6:]], dim=-1)  # (B, T, 3, 10)
+    uvt = uv.expand(B, -1, -1).index_select(1, tf).reshape(B, T, 3, 2)
+    nt = normals.index_select(1, tf).reshape(B, T, 3, 3)
+    k = const(((1.0, 1.0, 0.0), (1.0, 0.0, 1.0), (1.0, 0.0, 0.0)), nt).expand(B, T, 3, 3)
+    tab = cm @ torch.cat([k[..., :1], uvt.to(nt.dtype), w[..., None], nt, k[..., 1:], z[..., None]], dim=-1)
     return torch.cat([r.reshape(B * T, 2), tab.reshape(B * T, 3 * _NP)], dim=1)
 
 
