@@ -7,7 +7,7 @@ int(), bool() of a tensor) and the ops whose output size depends on the data (no
 loss (rgb and coverage, as bench_render.py) adds its few ops to the count.
 
     python benchmarks/bench_render_ops.py [--sizes 240x320,700x800] [--by op|site] [--top 25]
-                                          [--time --runs 7 --threads 1,2]
+                                          [--time --runs 7 --threads 1,2] [--tex-grad 1|0]
 
 Last lines (machine-readable): render_ops_<H>x<W>=<forward>+<backward> and, with --time,
 render_cpu_ms_<H>x<W>_t<threads>=<median process-time ms>.
@@ -81,11 +81,11 @@ def _site() -> str:
     return f"autograd {type(node).__name__}" if node is not None else "?"
 
 
-def setup(size, device):
+def setup(size, device, tex_grad: bool = True):
     mesh = read_obj(R1 / "0_R1_quad.obj")
     cam = camera_for(size)
     v = torch.tensor(mesh.vertices, dtype=torch.float32, device=device, requires_grad=True)
-    tex = load_texture().to(device).requires_grad_(True)
+    tex = load_texture().to(device).requires_grad_(tex_grad)
     tri = torch.from_numpy(mesh.triangles).to(device)
     uvs = torch.from_numpy(mesh.uvs).float().to(device)
     target = torch.zeros(1, cam.height, cam.width, 3, device=device)
@@ -103,8 +103,8 @@ def setup(size, device):
     return forward, step, v, tex
 
 
-def count(size, device, by):
-    forward, step, v, tex = setup(size, device)
+def count(size, device, by, tex_grad=True):
+    forward, step, v, tex = setup(size, device, tex_grad)
     step()  # warm caches (topology, allocator)
     v.grad = tex.grad = None
     with _Count(by) as cf:
@@ -121,9 +121,9 @@ def split(ops):
     return launches, views, syncs
 
 
-def timed(size, device, threads, runs):
+def timed(size, device, threads, runs, tex_grad=True):
     torch.set_num_threads(threads)
-    _, step, _, _ = setup(size, device)
+    _, step, _, _ = setup(size, device, tex_grad)
     for _ in range(3):
         step()
     cpu = []
@@ -145,6 +145,9 @@ def main(argv=None) -> int:
     ap.add_argument("--runs", type=int, default=7)
     ap.add_argument("--threads", default="1,2")
     ap.add_argument("--device", default="cpu")
+    ap.add_argument("--tex-grad", type=int, choices=(0, 1), default=1,
+                    help="1: gradients to the texture too (the texture phase, bench_render.py); 0: a fixed texture "
+                         "without gradient (the shape phase: its mip pyramid is kept between renders)")
     args = ap.parse_args(argv)
     if not (R1 / "0_R1_quad.obj").is_file():
         print(f"R1 template not found at {R1}", file=sys.stderr)
@@ -152,7 +155,7 @@ def main(argv=None) -> int:
     device = torch.device(args.device)
     lines = []
     for size in args.sizes.split(","):
-        fw, bw = count(size, device, args.by)
+        fw, bw = count(size, device, args.by, bool(args.tex_grad))
         (lf, vf, sf), (lb, vb, sb) = split(fw), split(bw)
         print(f"== {size}: forward {lf} ops (+{vf} views), {sf} host syncs; backward {lb} ops (+{vb} views), "
               f"{sb} host syncs")
@@ -164,7 +167,7 @@ def main(argv=None) -> int:
         lines.append(f"render_syncs_{size}={sf}+{sb}")
         if args.time:
             for t in (int(x) for x in args.threads.split(",")):
-                med, best, flt = timed(size, device, t, args.runs)
+                med, best, flt = timed(size, device, t, args.runs, bool(args.tex_grad))
                 print(f"   {size} threads={t}: CPU ms median {med:.2f}, min {best:.2f} ({args.runs} runs), "
                       f"{flt:.0f} page faults per step (first touches of memory the allocator got anew)",
                       flush=True)
