@@ -93,17 +93,16 @@ def visibility(pos: torch.Tensor, tri: torch.Tensor, resolution: tuple[int, int]
     inst_r = tab[13].long()
     b = torch.div(inst_r, T, rounding_mode="floor") if B > 1 else torch.zeros_like(inst_r)
     # per row: the column of its first candidate minus that candidate's place in the list, the flat index
-    # of the row's first pixel, the triangle; z/w along the row (zB row + zC) and its slope zA. Row-major
-    # (R, k) tables: repeat_interleave along dim 0 copies whole rows (along dim 1 it is 3× slower on CPU)
-    ints = torch.stack([xl.long() - pstart, (b * H + row.long()) * W, inst_r - b * T], dim=1)
-    ints = torch.repeat_interleave(ints, span, dim=0, output_size=N)  # (N, 3)
-    flts = torch.repeat_interleave(torch.stack([tab[10] * row + tab[11], tab[9]], dim=1), span, dim=0,
-                                   output_size=N)
-    px = torch.arange(N, device=dev) + ints[:, 0]
-    pix = ints[:, 1] + px
-    zpix = flts[:, 0] + flts[:, 1] * px.to(p.dtype)
+    # of the row's first pixel, the triangle; z/w along the row (zB row + zC) and its slope zA. Gathered per
+    # candidate by 1-D index_selects: contiguous results (a repeat_interleave of a row table gives strided
+    # columns, which made this part 10 % slower on CPU at 700x800, for 3 ops fewer)
+    pair = torch.repeat_interleave(span, output_size=N)
+    px = torch.arange(N, device=dev) + (xl.long() - pstart).index_select(0, pair)
+    pix = ((b * H + row.long()) * W).index_select(0, pair) + px
+    zpix = (tab[10] * row + tab[11]).index_select(0, pair) + tab[9].index_select(0, pair) * px.to(p.dtype)
+    tid = (inst_r - b * T).index_select(0, pair)
     q = ((zpix.clamp(-1.0, 1.0) + 1.0) * float(2 ** 29)).long()  # 31 bits of depth
-    key = torch.where((zpix >= -1.0) & (zpix <= 1.0), (q << 32) | ints[:, 2], _INT64_MAX)
+    key = torch.where((zpix >= -1.0) & (zpix <= 1.0), (q << 32) | tid, _INT64_MAX)
     zbuf = torch.full((B * H * W,), _INT64_MAX, dtype=torch.int64, device=dev)
     zbuf.scatter_reduce_(0, pix, key, reduce="amin", include_self=True)
     pix_out = torch.nonzero(zbuf != _INT64_MAX).squeeze(1)
