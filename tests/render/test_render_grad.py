@@ -237,3 +237,17 @@ def test_antialias_blend_backward_is_exact():
     img = torch.rand(1, cam.height, cam.width, 2, dtype=torch.float64, generator=g)
     assert not torch.equal(antialias(img, rast, pos, tri), img)
     assert torch.autograd.gradcheck(lambda c: antialias(c, rast, pos, tri), (img.requires_grad_(True),))
+
+
+def test_fast_texture_pyramid_cache_sees_in_place_changes():
+    """A texture without gradient keeps its mip pyramid between calls; an in-place change makes a new one."""
+    torch.manual_seed(3)
+    tex = torch.rand(32, 32, 3, dtype=torch.float64)
+    u, v = torch.rand(50, dtype=torch.float64), torch.rand(50, dtype=torch.float64)
+    da = torch.full((4, 50), 0.2, dtype=torch.float64)  # footprint of several texels: coarser levels in use
+    first = fused.texture_fast(tex, u, v, da)
+    torch.testing.assert_close(fused.texture_fast(tex, u, v, da), first, atol=0, rtol=0)
+    tex.mul_(0.5)
+    torch.testing.assert_close(fused.texture_fast(tex, u, v, da), fused.texture_fast(tex.clone(), u, v, da),
+                               atol=0, rtol=0)
+    torch.testing.assert_close(fused.texture_fast(tex, u, v, da), 0.5 * first, atol=1e-15, rtol=0)

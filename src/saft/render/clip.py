@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from saft.render.torch.rows import const
 from saft.scene.camera import Camera, Crop
 
 
@@ -61,19 +62,49 @@ def camera_to_clip(vertices: torch.Tensor, camera: Camera, *, crop: Crop | None 
 
     crop: render only that window of the camera's image (principal point shifted); scale: then resize the
     image by that factor (integer or arbitrary, e.g. 0.5 or 1/3, see Camera.scaled). The resolution to
-    rasterize at is that of `effective_camera(camera, crop, scale)`. near/far default to auto_near_far.
-    Differentiable with respect to `vertices`; keeps their dtype and device.
+    rasterize at is that of `effective_camera(camera, crop, scale)`. near/far default to auto_near_far's,
+    computed on the device (no host sync). Differentiable with respect to `vertices`; keeps their dtype
+    and device.
     """
     cam = effective_camera(camera, crop, scale)
-    R = torch.as_tensor(cam.world_to_camera[:3, :3], dtype=vertices.dtype, device=vertices.device)
-    t = torch.as_tensor(cam.world_to_camera[:3, 3], dtype=vertices.dtype, device=vertices.device)
+    R, t, P0 = _camera_tensors(cam, vertices)
     p_cam = vertices @ R.T + t
-    if near is None or far is None:
-        n_auto, f_auto = auto_near_far(p_cam[..., 2])
-        near = n_auto if near is None else near
-        far = f_auto if far is None else far
-    P = torch.as_tensor(projection_matrix(cam, near, far), dtype=vertices.dtype, device=vertices.device)
-    return torch.cat([p_cam, torch.ones_like(p_cam[..., :1])], dim=-1) @ P.T
+    clip = torch.cat([p_cam, torch.ones_like(p_cam[..., :1])], dim=-1) @ P0.T  # z column 0: added below
+    if near is None or far is None:  # 0-dim tensors on the device
+        n_auto, f_auto = _auto_near_far_tensors(p_cam[..., 2].detach())
+        near = n_auto if near is None else torch.full_like(n_auto, near)
+        far = f_auto if far is None else torch.full_like(f_auto, far)
+    # projection_matrix's z row: z_clip = (f + n)/(f − n) z − 2 f n/(f − n)
+    zc = p_cam[..., 2:3] * ((far + near) / (far - near)) - 2.0 * far * near / (far - near)
+    return clip + zc * const((0.0, 0.0, 1.0, 0.0), clip)
+
+
+_CAMERAS: dict = {}
+
+
+def _camera_tensors(cam: Camera, like: torch.Tensor):
+    """world_to_camera's R (3, 3) and t (3,) and projection_matrix(cam, ·, ·) without its z row, as tensors
+    of like's dtype and device, made once per camera (a host-to-device copy per frame otherwise)."""
+    key = (cam.K.tobytes(), cam.world_to_camera.tobytes(), cam.width, cam.height, like.dtype, like.device)
+    hit = _CAMERAS.get(key)
+    if hit is None:
+        P0 = projection_matrix(cam, 1.0, 2.0)
+        P0[2] = 0.0  # the z row depends on near and far: camera_to_clip adds it
+        hit = tuple(torch.as_tensor(np.ascontiguousarray(a), dtype=like.dtype, device=like.device)
+                    for a in (cam.world_to_camera[:3, :3], cam.world_to_camera[:3, 3], P0))
+        if len(_CAMERAS) > 64:
+            _CAMERAS.clear()
+        _CAMERAS[key] = hit
+    return hit
+
+
+def _auto_near_far_tensors(z: torch.Tensor):
+    """auto_near_far as 0-dim tensors on z's device (no host sync)."""
+    zmax = z.amax()
+    anyp = zmax > 0
+    near = torch.where(anyp, (0.5 * z.masked_fill(z <= 0, torch.inf).amin()).clamp_min(1e-3), 1e-3)
+    far = torch.where(anyp, torch.maximum(2.0 * zmax, near * 1.01) + 1e-2, 1.0)
+    return near, far
 
 
 def effective_camera(camera: Camera, crop: Crop | None = None, scale: float | None = None) -> Camera:

@@ -14,6 +14,7 @@ import torch
 from saft.render.backend import get_rasterizer
 from saft.render.clip import camera_to_clip
 from saft.render.output import RenderOutput
+from saft.render.topology import topology
 from saft.scene.camera import Camera
 
 
@@ -40,7 +41,7 @@ def render_cloth(vertices: torch.Tensor, triangles, uvs, texture: torch.Tensor, 
     if vertices.dim() == 2:
         vertices = vertices[None]
     R = rasterizer if rasterizer is not None else get_rasterizer("auto", vertices.device)
-    tri = _as_tensor(triangles, vertices, torch.int64)
+    tri = topology(triangles, vertices.device).tri  # int64 on the device, made once per triangle list
     uv = _as_tensor(uvs, vertices, vertices.dtype)
     tex = texture if isinstance(texture, torch.Tensor) else torch.as_tensor(np.asarray(texture))
     tex = tex.to(device=vertices.device)

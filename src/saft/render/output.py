@@ -6,6 +6,8 @@ from typing import Callable
 
 import torch
 
+from saft.render.topology import topology
+
 
 class RenderOutput:
     """rgb (B, H, W, 3): texture colours as they are (no lighting), black background, antialiased.
@@ -45,9 +47,11 @@ class RenderOutput:
 def vertex_normals(vertices: torch.Tensor, tri: torch.Tensor) -> torch.Tensor:
     """(B, V, 3) unit area-weighted vertex normals (right-hand rule on the triangle winding)."""
     B, T = vertices.shape[0], tri.shape[0]
-    v = vertices.index_select(1, tri.T.reshape(-1)).reshape(B, 3, T, 3)  # index_select: index_add backward
-    fn = torch.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0], dim=-1)  # length = 2·area
-    n = torch.zeros_like(vertices).index_add(1, tri.T.reshape(-1), fn.repeat(1, 3, 1))
+    tft = topology(tri).tri_flat_t  # tri.T.reshape(-1), made once per triangle list
+    # index_select: an index_add backward; unbind: one stack (three selects would zero-fill and copy each)
+    v0, v1, v2 = vertices.index_select(1, tft).reshape(B, 3, T, 3).unbind(1)
+    fn = torch.cross(v1 - v0, v2 - v0, dim=-1)  # length = 2·area
+    n = torch.zeros_like(vertices).index_add(1, tft, fn.repeat(1, 3, 1))
     return n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
 

@@ -1,14 +1,18 @@
-"""Triangle adjacency for silhouette detection: the triangle across each edge (or −1 on the boundary)."""
+"""The per-mesh constants of a render: the triangle list as int64 on the device, its transposes, and the
+triangle across each edge (for silhouette detection), made once per triangle list and cached, so that a
+frame's render does no host work, copy or sync for them."""
 
 from __future__ import annotations
 
 import hashlib
+import weakref
 from collections import OrderedDict
 
 import numpy as np
 import torch
 
-_CACHE: "OrderedDict[tuple, torch.Tensor]" = OrderedDict()
+_CACHE: "OrderedDict[tuple, Topology]" = OrderedDict()  # by content: the fallback, one hash per call
+_BY_ID: dict = {}  # by tensor identity: (id, device) → (weakref, _version, weakref to the Topology)
 _CACHE_SIZE = 16
 
 
@@ -33,16 +37,62 @@ def edge_neighbors_np(tri: np.ndarray) -> np.ndarray:
     return nbr.reshape(T, 3)
 
 
-def edge_neighbors(tri: torch.Tensor) -> torch.Tensor:
-    """edge_neighbors_np for a tensor, cached by the triangle list's contents (cheap to call per frame)."""
-    arr = tri.detach().to("cpu", torch.int64).contiguous().numpy()
-    key = (hashlib.blake2b(arr.tobytes(), digest_size=16).hexdigest(), arr.shape, str(tri.device))
-    hit = _CACHE.get(key)
-    if hit is not None:
+class Topology:
+    """tri (T, 3) int64; triT (3, T) and tri_flat_t = triT.reshape(-1) (vertex k of every triangle, then
+    k+1: gathers whose backward is one index_add); nbr (T, 3) the triangle across each edge or −1;
+    boundary (T, 3) nbr < 0; nb (T, 3) nbr clamped to a valid index. All on one device."""
+
+    def __init__(self, tri: torch.Tensor):
+        self.tri = tri
+        self.triT = tri.T.contiguous()
+        self.tri_flat_t = self.triT.reshape(-1)
+        self.nbr = torch.from_numpy(edge_neighbors_np(tri.cpu().numpy())).to(tri.device)
+        self.boundary = self.nbr < 0
+        self.nb = self.nbr.clamp(min=0)
+        self._batched: dict = {}
+
+    def batched_triT(self, B: int, V: int) -> torch.Tensor:
+        """(3, B·T): vertex k of triangle t of image b as a row of the flattened (B·V) vertices."""
+        out = self._batched.get((B, V))
+        if out is None:
+            off = torch.arange(B, device=self.tri.device).repeat_interleave(self.tri.shape[0]) * V
+            out = self._batched[(B, V)] = self.triT.repeat(1, B) + off
+        return out
+
+
+def topology(triangles, device: torch.device | str | None = None) -> Topology:
+    """The Topology of a triangle list (tensor or array, any int dtype) on `device` (default: the tensor's
+    own, else the CPU). A tensor seen before, unmodified (same object, same _version), is found by identity
+    (no copy to the host); anything else by a hash of its contents."""
+    is_t = isinstance(triangles, torch.Tensor)
+    dev = torch.device(device) if device is not None else (triangles.device if is_t else torch.device("cpu"))
+    if is_t:
+        hit = _BY_ID.get((id(triangles), dev))
+        topo = hit[2]() if hit is not None and hit[0]() is triangles and hit[1] == triangles._version else None
+        if topo is not None:
+            return topo
+    arr = (triangles.detach().to("cpu") if is_t else torch.as_tensor(np.asarray(triangles))).to(torch.int64)
+    arr = arr.contiguous().numpy()
+    key = (hashlib.blake2b(arr.tobytes(), digest_size=16).hexdigest(), arr.shape, str(dev))
+    topo = _CACHE.get(key)
+    if topo is None:
+        topo = Topology(torch.from_numpy(arr).to(dev))
+        _CACHE[key] = topo
+        if len(_CACHE) > _CACHE_SIZE:
+            _CACHE.popitem(last=False)
+    else:
         _CACHE.move_to_end(key)
-        return hit
-    out = torch.from_numpy(edge_neighbors_np(arr)).to(tri.device)
-    _CACHE[key] = out
-    if len(_CACHE) > _CACHE_SIZE:
-        _CACHE.popitem(last=False)
-    return out
+    for t in ((triangles, topo.tri) if is_t else (topo.tri,)):
+        _remember(t, dev, topo)
+    return topo
+
+
+def _remember(t: torch.Tensor, dev, topo: Topology) -> None:
+    k = (id(t), dev)
+    # weak both ways: the table keeps neither a caller's tensor nor a Topology the content cache dropped
+    _BY_ID[k] = (weakref.ref(t, lambda _r, k=k: _BY_ID.pop(k, None)), t._version, weakref.ref(topo))
+
+
+def edge_neighbors(tri: torch.Tensor) -> torch.Tensor:
+    """edge_neighbors_np for a tensor, cached (see topology)."""
+    return topology(tri).nbr

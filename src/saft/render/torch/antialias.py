@@ -11,28 +11,34 @@ import math
 
 import torch
 
-from saft.render.topology import edge_neighbors
+from saft.render.topology import topology
 from saft.render.torch.raster import W_EPS
-from saft.render.torch.rows import check_pos_tri
+from saft.render.torch.rows import check_pos_tri, const
 
 
-def _screen_xy(pos: torch.Tensor, H: int, W: int):
-    w = pos[..., 3]
-    w = torch.where(w.abs() < W_EPS, torch.full_like(w, W_EPS), w)
-    return (pos[..., 0] / w + 1.0) * (0.5 * W) - 0.5, (pos[..., 1] / w + 1.0) * (0.5 * H) - 0.5
+def screen_xy(pos: torch.Tensor, H: int, W: int) -> torch.Tensor:
+    """(B·V, 2) pixel coordinates (x = column, y = row; the centre of pixel (0, 0) at (0, 0)) of every
+    vertex of pos (B, V, 4); differentiable."""
+    p = pos.reshape(-1, 4)
+    w = p[:, 3:4]
+    w = w.masked_fill(w.abs() < W_EPS, W_EPS)
+    return (p[:, :2] / w + 1.0) * const((0.5 * W, 0.5 * H), p) - 0.5
+
+
+def _silhouette(xy: torch.Tensor, topo, B: int) -> torch.Tensor:
+    """(B, T, 3) bool silhouette edges (see silhouette_edges) from the screen positions xy (B·V, 2)."""
+    g = xy.view(B, -1, 2).index_select(1, topo.tri.reshape(-1)).view(B, -1, 3, 2)
+    d = g[:, :, 1:] - g[:, :, :1]  # (B, T, 2 edges from vertex 0, x|y)
+    front = d[..., 0, 0] * d[..., 1, 1] - d[..., 1, 0] * d[..., 0, 1] > 0  # twice the signed screen area
+    return topo.boundary | (front[:, topo.nb] != front[..., None])
 
 
 def silhouette_edges(pos: torch.Tensor, tri: torch.Tensor, H: int, W: int) -> torch.Tensor:
     """(B, T, 3) bool: edge k of triangle t (tri[t, k] → tri[t, (k+1)%3]) is a silhouette edge in image b:
     on the mesh boundary, or shared with a triangle facing the other way in screen space (a fold)."""
     with torch.no_grad():
-        nbr = edge_neighbors(tri)
-        x, y = _screen_xy(pos.detach(), H, W)
-        xt, yt = x[:, tri], y[:, tri]  # (B, T, 3)
-        area = (xt[..., 1] - xt[..., 0]) * (yt[..., 2] - yt[..., 0]) - (xt[..., 2] - xt[..., 0]) * (yt[..., 1] - yt[..., 0])
-        front = area > 0
-        nb = nbr.clamp(min=0)
-        return (nbr[None] < 0) | (front[:, nb] != front[..., None])
+        pos, tri = check_pos_tri(pos, tri)
+        return _silhouette(screen_xy(pos.detach(), H, W), topology(tri), pos.shape[0])
 
 
 def antialias(color: torch.Tensor, rast: torch.Tensor, pos: torch.Tensor, tri: torch.Tensor) -> torch.Tensor:
@@ -46,6 +52,10 @@ def antialias(color: torch.Tensor, rast: torch.Tensor, pos: torch.Tensor, tri: t
 
 
 def antialias_core(color, tid_img, depth_img, pos, tri, split=False):
+    """Both neighbour directions and the three edges of a triangle at once (the pairs of the two axes
+    in one list, per-edge quantities as (3, K) rows), so that the op count does not grow with them: two
+    host syncs (the nonzero of the pairs and of those whose front triangle has a silhouette edge); the
+    pairs with no crossing edge blend with weight 0 instead of being compacted away."""
     pos, tri = check_pos_tri(pos, tri)
     if split:  # color = (channels (B, H, W, C−1), last channel (B, H, W)) as separate tensors
         B, H, W, C = color[0].shape[:3] + (color[0].shape[3] + 1,)
@@ -53,95 +63,62 @@ def antialias_core(color, tid_img, depth_img, pos, tri, split=False):
         B, H, W, C = color.shape
     V = pos.shape[1]
     T = tri.shape[0]
+    n = B * H * W
+    topo = topology(tri)
+    xy = screen_xy(pos, H, W)  # (B·V, 2), differentiable: the blend weights below use it
     with torch.no_grad():
-        sil = silhouette_edges(pos, tri, H, W)  # (B, T, 3)
-        silT = sil.reshape(-1, 3).T.contiguous()  # (3, B·T)
-        tri_sil = silT[0] | silT[1] | silT[2]  # (B·T,)
-        triT = tri.T.contiguous()
-        x, y = _screen_xy(pos.detach(), H, W)  # (B, V)
-        xf, yf = x.reshape(-1), y.reshape(-1)
-        tflat = tid_img.reshape(-1)
+        sil = _silhouette(xy.detach(), topo, B).reshape(-1, 3)  # (B·T, 3)
+        t = tid_img.reshape(B, H, W)
+        # pairs (p, p+1) (axis 0) and (p, p+W) (axis 1) whose triangles differ, indexed axis·n + p
+        diff = torch.zeros(2, B, H, W, dtype=torch.bool, device=t.device)
+        torch.ne(t[:, :, :-1], t[:, :, 1:], out=diff[0, :, :, :-1])
+        torch.ne(t[:, :-1], t[:, 1:], out=diff[1, :, :-1])
+        idx = torch.nonzero(diff.view(-1)).squeeze(1)
+        axis = torch.div(idx, n, rounding_mode="floor")
+        pa = idx - axis * n
+        pb = pa + (axis * (W - 1) + 1)
         dflat = depth_img.reshape(-1)
-        pairs = []
-        for axis in (0, 1):  # 0: horizontal neighbours (j, j+1), 1: vertical (i, i+1)
-            if axis == 0:
-                if W < 2:
-                    continue
-                diff = tid_img[:, :, :-1] != tid_img[:, :, 1:]
-                a_idx = torch.nonzero(diff.reshape(-1)).squeeze(1)
-                pa = a_idx + torch.div(a_idx, W - 1, rounding_mode="floor")  # (b·H + i)·W + j
-                pb = pa + 1
-            else:
-                if H < 2:
-                    continue
-                diff = tid_img[:, :-1, :] != tid_img[:, 1:, :]
-                a_idx = torch.nonzero(diff.reshape(-1)).squeeze(1)
-                pa = a_idx + torch.div(a_idx, (H - 1) * W, rounding_mode="floor") * W
-                pb = pa + W
-            a_front = dflat.index_select(0, pa) <= dflat.index_select(0, pb)
-            pf = torch.where(a_front, pa, pb)  # the nearer pixel
-            po = torch.where(a_front, pb, pa)
-            t_f = tflat.index_select(0, pf)
-            bf = torch.div(pf, H * W, rounding_mode="floor") if B > 1 else torch.zeros_like(pf)
-            keep = torch.nonzero(tri_sil.index_select(0, bf * T + t_f)).squeeze(1)  # triangles with a silhouette edge
-            pf, po, t_f, bf = (t.index_select(0, keep) for t in (pf, po, t_f, bf))
-            # structure-of-arrays over the three edges k (vertex k → k+1) of the front triangle
-            bt = t_f if B == 1 else bf * T + t_f
-            vk = [triT[k].index_select(0, t_f) for k in range(3)]
-            if B > 1:
-                vk = [v + bf * V for v in vk]
-            xk = [xf.index_select(0, v) for v in vk]
-            yk = [yf.index_select(0, v) for v in vk]
-            rem_f = pf if B == 1 else pf - bf * H * W
-            fi_l = torch.div(rem_f, W, rounding_mode="floor")
-            fi = fi_l.to(x.dtype)
-            fj = (rem_f - fi_l * W).to(x.dtype)
-            sgn = torch.where(po > pf, 1.0, -1.0).to(x.dtype)
-            has = k_first = None
-            for k in range(3):
-                x0, y0, x1, y1 = xk[k], yk[k], xk[(k + 1) % 3], yk[(k + 1) % 3]
-                dx, dy = x1 - x0, y1 - y0
-                if axis == 0:  # crossing of row fi, edges more vertical than horizontal
-                    major = (dy.abs() >= dx.abs()) & (dy != 0)
-                    tpar = (fi - y0) / torch.where(dy == 0, torch.ones_like(dy), dy)
-                    tt = (x0 + tpar * dx - fj) * sgn
-                else:  # crossing of column fj, edges more horizontal than vertical
-                    major = dx.abs() > dy.abs()
-                    tpar = (fj - x0) / torch.where(dx == 0, torch.ones_like(dx), dx)
-                    tt = (y0 + tpar * dy - fi) * sgn
-                ok = silT[k].index_select(0, bt) & major
-                ok &= (tpar >= 0) & (tpar <= 1) & (tt >= 0) & (tt <= 1)
-                if has is None:
-                    has, k_first = ok, torch.zeros_like(vk[0])
-                else:  # the first edge that qualifies (as argmax over k)
-                    k_first = torch.where(has, k_first, torch.full_like(k_first, k))
-                    has = has | ok
-            sel = torch.nonzero(has).squeeze(1)
-            if sel.numel():
-                ks = k_first.index_select(0, sel)
-                v_s = [v.index_select(0, sel) for v in vk]
-                e0 = torch.where(ks == 0, v_s[0], torch.where(ks == 1, v_s[1], v_s[2]))
-                e1 = torch.where(ks == 0, v_s[1], torch.where(ks == 1, v_s[2], v_s[0]))
-                pairs.append((axis, pf.index_select(0, sel), po.index_select(0, sel), e0, e1,
-                              fi.index_select(0, sel), fj.index_select(0, sel), sgn.index_select(0, sel)))
-    if not pairs:
-        return color
-    posf = pos.reshape(-1, 4)
-    fs, pfs, pos_, tgts = [], [], [], []
-    for axis, pf, po, e0, e1, fi, fj, sgn in pairs:
-        xe0, ye0 = _screen_xy(posf.index_select(0, e0), H, W)
-        xe1, ye1 = _screen_xy(posf.index_select(0, e1), H, W)
-        if axis == 0:
-            tt = (xe0 + (fi - ye0) / (ye1 - ye0) * (xe1 - xe0) - fj) * sgn
-        else:
-            tt = (ye0 + (fj - xe0) / (xe1 - xe0) * (ye1 - ye0) - fi) * sgn
-        f = tt - 0.5  # > 0: the front triangle reaches into the other pixel; < 0: it leaves part of its own
-        fs.append(f)
-        pfs.append(pf)
-        pos_.append(po)
-        tgts.append(torch.where(f.detach() > 0, po, pf))
+        a_front = dflat.index_select(0, pa) <= dflat.index_select(0, pb)
+        pf = torch.where(a_front, pa, pb)  # the nearer pixel
+        po = torch.where(a_front, pb, pa)
+        bt = tid_img.reshape(-1).index_select(0, pf)
+        if B > 1:
+            bt = bt + torch.div(pf, H * W, rounding_mode="floor") * T
+        keep = torch.nonzero(sil.any(1).index_select(0, bt)).squeeze(1)  # triangles with a silhouette edge
+        if keep.numel() == 0:
+            return color
+        pf, po, bt, axis = torch.stack([pf, po, bt, axis]).index_select(1, keep)
+        K = pf.shape[0]
+        vk = topo.batched_triT(B, V).index_select(1, bt)  # (3, K) rows of xy of the front triangle's corners
+        # per pair the coordinate along it (P: x for axis 0, y for axis 1) and across it (Q): xy.view(-1)
+        # holds x of vertex v at 2v, y at 2v + 1
+        pq = torch.stack([axis, 1 - axis])[:, None]  # (2, 1, K)
+        PQ = xy.detach().view(-1).index_select(0, (2 * vk + pq).view(-1)).view(2, 3, K)
+        dP, dQ = (PQ.roll(-1, 1) - PQ).unbind(0)  # (3, K): edge k from vertex k to k+1
+        aP, aQ = dP.abs(), dQ.abs()
+        # axis 0 crosses row fi with edges at least as vertical as horizontal (not flat), axis 1 column
+        # fj with edges strictly more horizontal than vertical
+        major = (aQ > aP) | ((aQ == aP) & (aQ > 0) & (axis == 0))
+        rem = pf if B == 1 else pf - torch.div(pf, H * W, rounding_mode="floor") * (H * W)
+        fi = torch.div(rem, W, rounding_mode="floor")
+        fj = rem - fi * W
+        fq = torch.where(axis == 0, fi, fj).to(xy.dtype)  # the line crossed: row or column
+        fp = torch.where(axis == 0, fj, fi).to(xy.dtype)  # the pixel's coordinate along the pair
+        sgn = (po > pf).to(xy.dtype) * 2.0 - 1.0
+        tpar = (fq - PQ[1]) / dQ.masked_fill(dQ == 0, 1.0)
+        tt = (PQ[0] + tpar * dP - fp) * sgn
+        ok = sil.index_select(0, bt).T & major & (tpar >= 0) & (tpar <= 1) & (tt >= 0) & (tt <= 1)
+        has = ok.any(0)
+        no = ~has
+        k_first = ok.to(torch.uint8).argmax(0)  # the first edge that qualifies
+        e = vk.gather(0, torch.stack([k_first, (k_first + 1) % 3]))  # (2, K) its end points
+        eidx = (2 * e[None] + pq).view(-1)  # (P|Q, end 0|1, K)
+    P0, P1, Q0, Q1 = xy.view(-1).index_select(0, eidx).view(4, K).unbind(0)
+    tt = (P0 + (fq - Q0) / (Q1 - Q0).masked_fill(no, 1.0) * (P1 - P0) - fp) * sgn
+    f = (tt - 0.5).masked_fill(no, 0.0)  # > 0: the front triangle reaches into the other pixel; < 0: it
+    # leaves part of its own; 0 (no edge crosses): the blend adds 0
     dt = color[0].dtype if split else color.dtype
-    args = (torch.cat(fs).to(dt), torch.cat(pfs), torch.cat(pos_), torch.cat(tgts))
+    args = (f.to(dt), pf, po, torch.where(f.detach() > 0, po, pf))
     if split:
         rgb, last = _AABlendSplitFn.apply(color[0].reshape(-1, C - 1), color[1].reshape(-1), *args)
         return rgb.reshape(B, H, W, C - 1), last.reshape(B, H, W)

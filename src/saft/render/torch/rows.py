@@ -4,6 +4,18 @@ from __future__ import annotations
 
 import torch
 
+_CONSTS: dict = {}
+
+
+def const(values: tuple, like: torch.Tensor) -> torch.Tensor:
+    """A small constant tensor of like's dtype and device, made once (a per-call torch.tensor would be a
+    host-to-device copy per frame on a GPU)."""
+    key = (values, like.dtype, like.device)
+    t = _CONSTS.get(key)
+    if t is None:
+        t = _CONSTS[key] = torch.tensor(values, dtype=like.dtype, device=like.device)
+    return t
+
 
 def check_pos_tri(pos: torch.Tensor, tri: torch.Tensor):
     if pos.dim() == 2:
