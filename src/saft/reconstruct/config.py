@@ -123,6 +123,9 @@ class ShapeConfig:
     # (c_unpinned 13), 10 let more wrong ones through (4.16). BENCHMARKS.md, "Tracks end at colour jumps".
     track_jump_ratio: float = 8.0
     track_jump_floor: float = 0.03
+    # A track also ends where the chromaticity under it drifts from its frame-0 one by more than this (0 =
+    # off; saft.reconstruct.tracks.end_at_colour_drift): a track that slid slowly onto other threads.
+    track_drift: float = 0.0
     # Skip a track where the current reconstruction hides its vertex behind another part of the cloth by
     # more than the mean edge length (a fold the flow's forward-backward check let through).
     track_occlusion: bool = True
