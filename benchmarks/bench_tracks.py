@@ -12,14 +12,13 @@ prints, per scene and frame, the median and 90th percentile of |track − projec
 vertex| over the still-valid tracks, and their coverage, for each colour-jump ratio in --jump-ratios
 (shape.track_jump_ratio; 0 = off) and chromaticity drift in --drifts (shape.track_drift; 0 = off). A name in
 --only that names a scene folder (the independent-simulator scenes, whose 40 × 40 ground truth is resampled
-onto the 25 × 25 template's material grid) is used as it is. The last lines are `tracks_p90_px_last_frame_<radius>[_jump<ratio>]=<median
+onto the 25 × 25 template's material grid) is used as it is. The last lines are `tracks_p90_px_last_frame_<radius>[_jump<ratio>][_drift<d>]=<median
 over scenes>` for each radius and ratio.
 """
 
 from __future__ import annotations
 
 import argparse
-import statistics
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -94,7 +93,7 @@ def main() -> None:
             last_p90[(r, j, d)].append(rows[-1][1])
     for r, j, d in settings:
         suffix = (f"_jump{j:g}" if j > 0 else "") + (f"_drift{d:g}" if d > 0 else "")
-        print(f"tracks_p90_px_last_frame_{r:g}{suffix}={statistics.median(last_p90[(r, j, d)]):.3f}")
+        print(f"tracks_p90_px_last_frame_{r:g}{suffix}={float(np.nanmedian(last_p90[(r, j, d)])):.3f}")
 
 
 if __name__ == "__main__":

@@ -29,8 +29,8 @@ its point drifts onto other threads of the print. Shading changes a point's brig
 chromaticity (rgb / (r + g + b), under a white light), so a track also ends at the first frame where the
 chromaticity under it (5 × 5 box-filtered) differs from its frame-0 chromaticity by more than `drift` in
 some channel. On the independent-simulator scenes the track-frames that pass 0.02 are 0.1-0.3 px off
-(median), those beyond it 3-8 px (BENCHMARKS.md, "Tracks end where their colour drifts"). A print without
-colour never triggers it.
+(median), those beyond it 3-8 px (BENCHMARKS.md, "Why saft loses the independent scenes"). A print
+without colour never triggers it.
 
     L_track = mean over valid (frame, vertex) of huber(|π(x_v,t) − p_v,t| / s)
 
