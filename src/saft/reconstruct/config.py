@@ -127,7 +127,9 @@ class ShapeConfig:
     # off; saft.reconstruct.tracks.end_at_colour_drift): a track that slid slowly onto other threads.
     # Off by default: 0.02 took the independent side-gust scene from 23.3 to 15.1 and the wind scene from
     # 1.18 to 1.05, but R1 from 0.432 to 0.551 (it ends 29 % of R1's track-frames) and the flag from 19.0
-    # to 21.1 (one run each; BENCHMARKS.md, "Why saft loses the independent scenes").
+    # to 21.1; 0.03 gave the flag 16.9, the side gust 19.1, the wind scene 1.05, one corner 24.4, but R1
+    # 0.460 with its last frame 1.77x the mean against 1.50x (one run each; BENCHMARKS.md, "Why saft
+    # loses the independent scenes").
     track_drift: float = 0.0
     # Skip a track where the current reconstruction hides its vertex behind another part of the cloth by
     # more than the mean edge length (a fold the flow's forward-backward check let through).
