@@ -7,7 +7,8 @@ import torch
 from saft.reconstruct.config import ShapeConfig
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
 from saft.reconstruct.shape_phase import lr_factor
-from saft.reconstruct.tracks import (VertexTracks, appearance_steps, bilinear_sample, end_at_appearance_jumps, project,
+from saft.reconstruct.tracks import (VertexTracks, appearance_steps, bilinear_sample, end_at_appearance_jumps,
+                                     end_at_colour_drift, project,
                                      track_loss, track_points)
 from saft.scene.camera import look_at
 from saft.synthetic import procedural_texture
@@ -297,3 +298,18 @@ def test_the_colour_jump_threshold_follows_the_videos_noise():
     quiet[5:] += 0.2                                                 # a jump far above the quiet noise
     kept = end_at_appearance_jumps(quiet, points, valid, 8.0, 0.03)
     assert kept[:5].all() and not kept[5:].any()
+
+
+def test_a_track_ends_where_its_colour_drifts_slowly_but_not_where_its_shading_changes():
+    rng = np.random.default_rng(2)
+    tex = _smooth_texture(96)
+    frames = np.stack([tex * (1.0 - 0.06 * t) for t in range(8)])   # the cloth darkens as it turns
+    points = np.repeat(rng.uniform(20, 76, (40, 2))[None], 8, axis=0)
+    points[:, :10] += np.arange(8.0)[:, None, None] * np.array([2.0, 0.0])   # 10 tracks slide 2 px a frame
+    valid = np.ones((8, 40), bool)
+    kept = end_at_colour_drift(frames, points, valid, 0.02)
+    assert kept[:, 10:].all()                                        # darker, same chromaticity: kept
+    assert not kept[-1, :10].any() and kept[0].all()               # 14 px onto other threads: all ended
+    ended = ~kept[-1]
+    assert not kept[np.argmax(~kept, axis=0)[ended].max():, ended].any()   # ended for good
+    assert (end_at_colour_drift(frames, points, valid, 0.0) == valid).all()  # 0 = off

@@ -123,6 +123,14 @@ class ShapeConfig:
     # (c_unpinned 13), 10 let more wrong ones through (4.16). BENCHMARKS.md, "Tracks end at colour jumps".
     track_jump_ratio: float = 8.0
     track_jump_floor: float = 0.03
+    # A track also ends where the chromaticity under it drifts from its frame-0 one by more than this (0 =
+    # off; saft.reconstruct.tracks.end_at_colour_drift): a track that slid slowly onto other threads.
+    # Off by default: 0.02 took the independent side-gust scene from 23.3 to 15.1 and the wind scene from
+    # 1.18 to 1.05, but R1 from 0.432 to 0.551 (it ends 29 % of R1's track-frames) and the flag from 19.0
+    # to 21.1; 0.03 gave the flag 16.9, the side gust 19.1, the wind scene 1.05, one corner 24.4, but R1
+    # 0.460 with its last frame 1.77x the mean against 1.50x (one run each; BENCHMARKS.md, "Why saft
+    # loses the independent scenes").
+    track_drift: float = 0.0
     # Skip a track where the current reconstruction hides its vertex behind another part of the cloth by
     # more than the mean edge length (a fold the flow's forward-backward check let through).
     track_occlusion: bool = True

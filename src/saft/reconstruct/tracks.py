@@ -24,6 +24,14 @@ while a track that jumps onto the flap lands on another part of the print. So a 
 first step whose colour change (3 × 3 box-filtered RGB, largest channel) exceeds `jump_ratio` times the
 video's median step over all tracks (its noise and shading level; never below `jump_floor`).
 
+A track can also slide slowly (a curling edge, a cloth turning at a fast swing): no single step jumps, but
+its point drifts onto other threads of the print. Shading changes a point's brightness, not its
+chromaticity (rgb / (r + g + b), under a white light), so a track also ends at the first frame where the
+chromaticity under it (5 × 5 box-filtered) differs from its frame-0 chromaticity by more than `drift` in
+some channel. On the independent-simulator scenes the track-frames that pass 0.02 are 0.1-0.3 px off
+(median), those beyond it 3-8 px (BENCHMARKS.md, "Why saft loses the independent scenes"). A print
+without colour never triggers it.
+
     L_track = mean over valid (frame, vertex) of huber(|π(x_v,t) − p_v,t| / s)
 
 π: the working camera's projection, p: the track, s: the image's larger side in pixels (so the loss is
@@ -143,6 +151,18 @@ def end_at_appearance_jumps(rgb: np.ndarray, points: np.ndarray, valid: np.ndarr
     return valid & ~np.maximum.accumulate(jumped, axis=0)
 
 
+def end_at_colour_drift(rgb: np.ndarray, points: np.ndarray, valid: np.ndarray, drift: float) -> np.ndarray:
+    """`valid` with every track ended from its first frame whose chromaticity (5 × 5 box-filtered rgb
+    divided by r + g + b) differs from its frame-0 one by more than `drift` in some channel; 0 changes nothing."""
+    if drift <= 0 or points.shape[0] < 2:
+        return valid
+    colours = np.stack([bilinear_sample(uniform_filter(frame, size=(5, 5, 1), mode="nearest"), pts)
+                        for frame, pts in zip(rgb, points)])
+    chroma = colours / np.clip(colours.sum(axis=-1, keepdims=True), 1e-3, None)
+    drifted = np.abs(chroma - chroma[:1]).max(axis=-1) > drift
+    return valid & ~np.maximum.accumulate(drifted, axis=0)
+
+
 def project(points: torch.Tensor, camera: Camera) -> tuple[torch.Tensor, torch.Tensor]:
     """World points (..., 3) → pixel coordinates (..., 2) in `camera`'s image and camera depth (...)."""
     R = torch.as_tensor(camera.world_to_camera[:3, :3], dtype=points.dtype, device=points.device)
@@ -173,14 +193,16 @@ def visible_vertices(template: torch.Tensor, camera: Camera, mask0: np.ndarray, 
 
 def compute_vertex_tracks(rgb: torch.Tensor, mask: torch.Tensor, template: torch.Tensor, camera: Camera,
                           depth0: torch.Tensor, fb_threshold: float, reanchor_radius: float = 0.0,
-                          jump_ratio: float = 0.0, jump_floor: float = 0.03) -> VertexTracks:
+                          jump_ratio: float = 0.0, jump_floor: float = 0.03, drift: float = 0.0) -> VertexTracks:
     """Tracks of every template vertex through the target video (rgb (N, H, W, 3), mask (N, H, W)); with
-    jump_ratio > 0 a track also ends at its first colour jump (end_at_appearance_jumps)."""
+    jump_ratio > 0 a track also ends at its first colour jump (end_at_appearance_jumps), with drift > 0 where
+    its chromaticity drifts from frame 0's (end_at_colour_drift)."""
     rgb_np = rgb.detach().cpu().numpy()
     mask_np = mask.detach().cpu().numpy()
     start, ok = visible_vertices(template, camera, mask_np[0], depth0.detach().cpu().numpy())
     pts, valid = track_points(rgb_np, mask_np, start, ok, fb_threshold, reanchor_radius)
     valid = end_at_appearance_jumps(rgb_np, pts, valid, jump_ratio, jump_floor)
+    valid = end_at_colour_drift(rgb_np, pts, valid, drift)
     return VertexTracks(points=torch.as_tensor(pts, dtype=template.dtype, device=template.device),
                         valid=torch.as_tensor(valid, device=template.device),
                         scale=float(max(camera.width, camera.height)))
@@ -220,5 +242,5 @@ def track_loss(positions: torch.Tensor, tracks: VertexTracks, camera: Camera, hu
     return h[valid].mean()
 
 
-__all__ = ["VertexTracks", "compute_vertex_tracks", "track_loss", "hidden_vertices", "track_points", "project", "visible_vertices",
+__all__ = ["VertexTracks", "compute_vertex_tracks", "end_at_colour_drift", "track_loss", "hidden_vertices", "track_points", "project", "visible_vertices",
            "dense_flow", "bilinear_sample", "to_gray_u8"]
