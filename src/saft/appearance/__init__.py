@@ -17,11 +17,7 @@ device="cpu", progress=None, resume_state=None, checkpoint=None, init_texture=No
 ``AppearanceResult``: diffuse (S, S, 3) linear albedo, roughness (S, S), metallic (S, S), envmap
     (256, 512, 3) linear radiance, losses (per epoch: masked sRGB MSE of the 1-spp renders), config,
     seconds, cpu_seconds, state, materials (maps="guided": per material cluster its area, roughness,
-    metallic and whether the video determined it; saved in appearance.json with an "undetermined" note),
-    held_out_loss / start_choice (``matte_start_roughness`` > 0: two fits, from the profile's roughness and
-    from a matte one; the glossier kept only if its noise-free loss on the frames is lower by more than
-    ``gloss_margin``: ``saft.appearance.two_starts``; start_choice is saved in appearance.json). Maps are
-    numpy float32, row 0 = TOP of the texture image (UV v = 1).
+    metallic and whether the video determined it; saved in appearance.json with an "undetermined" note). Maps are numpy float32, row 0 = TOP of the texture image (UV v = 1).
 ``render_appearance(result, vertices, triangles, uvs, camera, spp=None, device="cpu", seed=0)``
     sRGB re-render(s): (H, W, 3) for (V, 3) vertices, (F, H, W, 3) for (F, V, 3).
 ``save_appearance(result, out_dir)`` → DIR/material/diffuse.png (sRGB-encoded), roughness.png,

@@ -31,13 +31,6 @@ class AppearanceConfig:
     # matte is set to matte and reported undetermined (appearance.evidence); 0 = no test
     evidence_threshold: float = 0.0
     evidence_spp: int = 4
-    # maps="guided": > 0 fits twice, from init_roughness and from this (matte) roughness, and keeps the glossier
-    # result only if its noise-free loss on the frames is lower by more than gloss_margin (relative), the matte
-    # one otherwise (appearance.two_starts: the fit's roughness ends near its start on matte fabrics); 0 = one fit
-    matte_start_roughness: float = 0.0
-    # 3 × the largest change of a start's loss between two fit seeds (cotton: 0.4 % / 1.0 %; BENCHMARKS.md issue
-    # 28 "Two starts"); not in the profiles: at this margin the choice loses plaid and keeps cotton glossy
-    gloss_margin: float = 0.03
     tile_size: int = 128                 # decoder tile side (4·2^k)
     num_tiles: int = 16                  # tiles on a square grid (16 → 4×4)
     tile_overlap: int = 10               # → maps of 4·(128−10) = 472 px
@@ -82,8 +75,6 @@ class AppearanceConfig:
         def bad(key, why):
             raise SaftInputError(f"appearance.{key}", why)
 
-        if not (0 <= self.matte_start_roughness <= 1) or not (0 <= self.gloss_margin < 1):
-            bad("matte_start_roughness", "matte_start_roughness must lie in [0, 1] and gloss_margin in [0, 1)")
         if self.epochs < 1:
             bad("epochs", "must be >= 1")
         if not (0 < self.lr_final_factor <= 1):

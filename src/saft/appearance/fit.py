@@ -20,7 +20,6 @@ from saft.appearance.mitsuba_backend import load_mitsuba
 from saft.appearance.params import (EnvironmentMap, PyramidEnvironmentMap, TexelMaps, TextureDecoder, colour_weight,
                                     env_amplitude, env_smoothness, linear_to_srgb, srgb_to_linear)
 from saft.appearance.renderer import ClothRenderer
-from saft.appearance.two_starts import held_out_loss, pick, product_loss
 from saft.errors import SaftInputError
 from saft.io_utils import atomic_path, atomic_write_json, read_image, resize_images, write_image
 from saft.scene.camera import Camera
@@ -47,10 +46,6 @@ class AppearanceResult:
     # maps="guided": per material cluster, its area, roughness, metallic and whether the video determined
     # it (appearance.evidence); None for the other parametrisations
     materials: list[dict] | None = None
-    # matte_start_roughness > 0: per test frame, the noise-free loss of the final maps (appearance.two_starts),
-    # and which of the two starts was kept (with both losses)
-    held_out_loss: list[float] | None = None
-    start_choice: dict | None = None
 
 
 def _build_model(cfg: AppearanceConfig, init_texture) -> torch.nn.Module:
@@ -145,33 +140,7 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
     progress may raise (e.g. on Ctrl-C) to stop the fit: checkpoint(state) is called with the state after
     that epoch before the exception goes on, so an interruption loses no finished epoch.
     init_texture: the phase-1 texture (St, St, 3) sRGB, which maps="guided" starts from (required there).
-    config.matte_start_roughness > 0 (maps="guided"): two fits, from init_roughness and from that roughness,
-    one kept by appearance.two_starts (progress runs through the epochs twice; a resumed fit is one fit).
     """
-    cfg = copy.deepcopy(config) if config is not None else AppearanceConfig()
-    args = (vertices_per_frame, triangles, uvs, camera, target_rgb, target_mask)
-    kw = dict(device=device, progress=progress, checkpoint=checkpoint, init_texture=init_texture)
-    if cfg.matte_start_roughness <= 0 or cfg.maps != "guided" or resume_state is not None:
-        return _fit_single(*args, config=cfg, resume_state=resume_state, **kw)
-    first = _fit_single(*args, config=cfg, **kw)
-    matte_cfg = copy.deepcopy(cfg)
-    matte_cfg.init_roughness = cfg.matte_start_roughness
-    second = _fit_single(*args, config=matte_cfg, **kw)
-    kept, record = pick(first, second, cfg.gloss_margin)
-    kept.start_choice = record
-    kept.config = cfg            # the run's config (init_roughness of the kept start is in start_choice)
-    kept.seconds, kept.cpu_seconds = first.seconds + second.seconds, first.cpu_seconds + second.cpu_seconds
-    if checkpoint is not None:   # the last checkpoint is the kept fit's
-        checkpoint(kept.state)
-    return kept
-
-
-def _fit_single(vertices_per_frame, triangles, uvs, camera: Camera, target_rgb, target_mask,
-                config: AppearanceConfig | None = None, device="cpu",
-                progress: Callable[[int, int, float], None] | None = None,
-                resume_state: dict | None = None,
-                checkpoint: Callable[[dict], None] | None = None, init_texture=None) -> AppearanceResult:
-    """One fit of fit_appearance (one start)."""
     cfg = copy.deepcopy(config) if config is not None else AppearanceConfig()
     cfg.validate()
     verts = np.asarray(vertices_per_frame, dtype=np.float64)
@@ -294,20 +263,6 @@ def _fit_single(vertices_per_frame, triangles, uvs, camera: Camera, target_rgb, 
         evidence = cluster_evidence(model, env_now, render_frame, test_frames,
                                     lambda f, img: masked_linearised_srgb_mse(img, lin_t[f], slope_t[f], mask_t[f]),
                                     spp=cfg.evidence_spp, threshold=cfg.evidence_threshold)
-    held_out = None
-    if isinstance(model, GuidedMaps) and cfg.matte_start_roughness > 0:
-        test_frames = [int(f) for f in np.linspace(0, n_frames - 1, min(n_frames, 8)).round()]
-        with torch.no_grad():
-            maps_now = model()
-            env_now = env(colour_weight(cfg.epochs - 1, cfg.epochs, cfg.grey_fraction, cfg.blend_fraction))
-
-        def render_final(f, spp, seed):
-            renderer.set_vertices(verts[f])
-            return renderer.render(maps_now["diffuse"], maps_now["roughness"], maps_now["metallic"], env_now,
-                                   spp=spp, seed=seed)
-
-        held_out = held_out_loss(render_final, test_frames,
-                                 lambda f, a, b: product_loss(a, b, lin_t[f], slope_t[f], mask_t[f]))
     final_state = state(cfg.epochs)
     if checkpoint is not None:
         checkpoint(final_state)
@@ -329,7 +284,6 @@ def _fit_single(vertices_per_frame, triangles, uvs, camera: Camera, target_rgb, 
         cpu_seconds=time.process_time() - c0,
         state=final_state,
         materials=evidence,
-        held_out_loss=held_out,
     )
 
 
@@ -398,8 +352,6 @@ def save_appearance(result: AppearanceResult, out_dir) -> dict[str, Path]:
     if result.materials is not None:
         summary["materials"] = result.materials
         summary["undetermined"] = undetermined_note(result.materials)
-    if result.start_choice is not None:
-        summary["start_choice"] = result.start_choice
     atomic_write_json(paths["summary"], summary)
     return paths
 
@@ -419,5 +371,4 @@ def load_appearance(out_dir) -> AppearanceResult:
         seconds=float(summary.get("seconds", 0.0)),
         cpu_seconds=float(summary.get("cpu_seconds", 0.0)),
         materials=summary.get("materials"),
-        start_choice=summary.get("start_choice"),
     )
