@@ -125,11 +125,17 @@ def track_points(rgb: np.ndarray, mask: np.ndarray, start: np.ndarray, start_val
     return points, valid
 
 
+def track_colours(rgb: np.ndarray, points: np.ndarray, box: int) -> np.ndarray:
+    """(N, P, 3) colour under each track: every frame box × box box-filtered, sampled bilinearly at the
+    track's position. rgb (N, H, W, 3), points (N, P, 2)."""
+    return np.stack([bilinear_sample(uniform_filter(frame, size=(box, box, 1), mode="nearest"), pts)
+                     for frame, pts in zip(rgb, points)])
+
+
 def appearance_steps(rgb: np.ndarray, points: np.ndarray) -> np.ndarray:
     """(N, P) colour change along each track: the largest channel of |c_t(p_t) − c_{t−1}(p_{t−1})|, c the
     3 × 3 box-filtered frame sampled at the track's position; 0 in frame 0. rgb (N, H, W, 3), points (N, P, 2)."""
-    colours = np.stack([bilinear_sample(uniform_filter(frame, size=(3, 3, 1), mode="nearest"), pts)
-                        for frame, pts in zip(rgb, points)])
+    colours = track_colours(rgb, points, box=3)
     steps = np.zeros(points.shape[:2])
     steps[1:] = np.abs(np.diff(colours, axis=0)).max(axis=-1)
     return steps
@@ -156,8 +162,7 @@ def end_at_colour_drift(rgb: np.ndarray, points: np.ndarray, valid: np.ndarray, 
     divided by r + g + b) differs from its frame-0 one by more than `drift` in some channel; 0 changes nothing."""
     if drift <= 0 or points.shape[0] < 2:
         return valid
-    colours = np.stack([bilinear_sample(uniform_filter(frame, size=(5, 5, 1), mode="nearest"), pts)
-                        for frame, pts in zip(rgb, points)])
+    colours = track_colours(rgb, points, box=5)
     chroma = colours / np.clip(colours.sum(axis=-1, keepdims=True), 1e-3, None)
     drifted = np.abs(chroma - chroma[:1]).max(axis=-1) > drift
     return valid & ~np.maximum.accumulate(drifted, axis=0)

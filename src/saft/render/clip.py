@@ -45,14 +45,10 @@ def auto_near_far(z_cam: torch.Tensor) -> tuple[float, float]:
     Points at or behind the camera do not pull near below 1 mm. Nothing visible is clipped and the depth
     range stays tight, which keeps z/w precise (the metric depth saft returns does not depend on them).
     """
-    z = z_cam.detach()
-    zpos = z[z > 0]
-    if zpos.numel() == 0:
+    if z_cam.numel() == 0:
         return 1e-3, 1.0
-    zmin, zmax = float(zpos.min()), float(zpos.max())
-    near = max(1e-3, 0.5 * zmin)
-    far = max(2.0 * zmax, near * 1.01) + 1e-2
-    return near, far
+    near, far = _auto_near_far_tensors(z_cam.detach().to(torch.float64))  # float64: as Python floats
+    return float(near), float(far)
 
 
 def camera_to_clip(vertices: torch.Tensor, camera: Camera, *, crop: Crop | None = None,
