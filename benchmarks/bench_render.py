@@ -107,9 +107,15 @@ def main(argv=None) -> int:
     torch.set_num_threads(best)
     if args.profile:
         from torch.profiler import ProfilerActivity, profile
-        with profile(activities=[ProfilerActivity.CPU]) as prof:
+        acts = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if device.type == "cuda" else [])
+        with profile(activities=acts) as prof:
             bench(half, mesh, tex, R, device, 5)
-        print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=20))
+        ev = prof.key_averages()
+        print(ev.table(sort_by="self_cpu_time_total", row_limit=25))
+        counts = {k: sum(e.count for e in ev if e.key == k) for k in
+                  ("cudaLaunchKernel", "cudaLaunchKernelExC", "cuLaunchKernel", "cudaStreamSynchronize",
+                   "cudaMemcpyAsync", "cudaDeviceSynchronize")}
+        print("per profiled step (8 steps):", {k: v / 8 for k, v in counts.items() if v})
     print(f"best thread count at 350x400: {best}")
     print(f"render_fwd_bwd_ms_700x800_{device.type}_{R.name}={wall_full[best]:.2f}")
     print(f"render_fwd_bwd_ms_350x400_{device.type}_{R.name}={wall_half[best]:.2f}")

@@ -7,12 +7,16 @@
 #   render      the render benchmark at 700x800 and 350x400: PyTorch and nvdiffrast on CUDA, PyTorch on the CPU
 #   r1          R1, texture and shape phases, --device auto: wall time and mean CD2 (set SAFT_PHYSICS_DEVICE
 #               to cpu or cuda to override auto's physics device for an A/B run)
+#   profile     (not in the default steps) R1's first 10 frames, 10 final epochs, under torch.profiler: host and
+#               device time per part of the shape phase (bench_r1.py --profile)
 # Then a table, and one line per number (name=value). Each step has its own time limit, so a hung step
 # costs its limit, not the check. Choose steps with SAFT_GPU_CHECK_STEPS="physics r1" and the tests with
-# SAFT_GPU_CHECK_TESTS="tests/physics" (default: all of both). On the lent machine of this workplace
+# SAFT_GPU_CHECK_TESTS="tests/physics" (default: all of both), the solvers of the physics step with
+# SAFT_GPU_CHECK_PHYSICS="--solver dense --compile both" (default "--solver all"). On the lent machine of this workplace
 # (see ../shared/gpu/stage.sh):
 #   bash .gpu/run.sh bash benchmarks/gpu_check.sh
-# Logs go to $OUT (the lent machine's folder that comes back) or /tmp/saft-gpu-check.
+# Logs go to $OUT (the lent machine's folder that comes back) or /tmp/saft-gpu-check: one per step and
+# numbers.txt (8 files at most come back); the result folders go to /tmp.
 set -u
 cd "$(dirname "$0")/.."
 out=${OUT:-/tmp/saft-gpu-check}
@@ -48,16 +52,18 @@ import sys; sys.exit(0 if ok else 1)"
 want info && step info 120 $py -m saft info
 want pytest && step pytest 300 $py -m pytest -q -m cuda -p no:cacheprovider ${SAFT_GPU_CHECK_TESTS:-tests}
 if want physics; then
-  step physics 240 $py benchmarks/bench_physics.py --device cuda --solver all --budget-s 1.5
+  step physics 240 $py benchmarks/bench_physics.py --device cuda ${SAFT_GPU_CHECK_PHYSICS:---solver all} --budget-s 1.5
   gpu_s=$(grep -h '^physics_fwdbwd_s=' "$out/physics.log" | cut -d= -f2)
   cpu_s=$(grep -h '^physics_cpu_fwdbwd_s=' "$out/physics.log" | cut -d= -f2)
   faster=$($py -c "print(int(${gpu_s:-1e9} < ${cpu_s:-0}))")
   echo "physics_cuda_faster=$faster" | tee -a "$out/physics.log"   # auto puts R1's physics on CUDA (saft.device): this says whether it should
 fi
-want render && step render 180 bash -c "$py benchmarks/bench_render.py --device cuda --backend nvdiffrast --threads 1 --runs 20 && \
+want render && step render 180 bash -c "$py benchmarks/bench_render.py --device cuda --backend nvdiffrast --threads 1 --runs 20 --profile && \
                          $py benchmarks/bench_render.py --device cuda --backend torch --threads 1 --runs 20 && \
                          $py benchmarks/bench_render.py --device cpu --backend torch --threads 8 --runs 5"
-want r1 && step r1 420 $py benchmarks/bench_r1.py --device auto --out "$out/r1"
+want profile && step profile 240 $py benchmarks/bench_r1.py --device auto --frames 10 --set shape.final_epochs=10 \
+                          --profile --out /tmp/saft-gpu-profile
+want r1 && step r1 420 $py benchmarks/bench_r1.py --device auto --out /tmp/saft-gpu-r1
 
 echo
 echo "=== summary"

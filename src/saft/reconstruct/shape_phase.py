@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
+from torch.profiler import record_function
 
 from saft.physics import ClothTopology, PhysicsParams, deformation_energy, rollout
 from saft.physics.factor_cache import FactorCache
@@ -312,41 +313,10 @@ def along_ray_weight(cfg: ShapeConfig, sim: ShapeSimulator) -> float:
     return cfg.force_along_weight if sim.pinned is None else cfg.force_along_weight_pinned
 
 
-def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, cfg: ShapeConfig,
-                        texture: torch.Tensor, frames: int, tracks: VertexTracks | None = None,
-                        start: int = 0) -> dict[str, float]:
-    """Forward + backward of one epoch over frames start..frames-1 (start > 0: a window from a stored,
-    detached state); leaves the gradients in the parameters. Returns the loss terms."""
-    params = state.params
-    positions = simulate_epoch(sim, state, frames, start)         # (F - start, V, 3) float64, with graph
-    # The renders may run on another device than the physics (saft.device.plan_devices).
-    pos_leaf = positions.detach().to(device=ctx.device, dtype=torch.float32).requires_grad_(True)
+def _regularizers(ctx: PhaseContext, sim: ShapeSimulator, params: ShapeParams, cfg: ShapeConfig,
+                  positions: torch.Tensor, depths: list, tracks: VertexTracks | None, start: int, frames: int):
+    """The physics side's terms (float64): (energy, force, track, held, their weighted sum)."""
     n_win = frames - start
-
-    # Render in chunks: each chunk's graph is freed after its backward into pos_leaf.
-    sums = {"image": 0.0, "silhouette": 0.0}
-    depths = []
-    batch = render_chunk(ctx.device)
-    light = params.light.to(device=ctx.device, dtype=torch.float32) if params.light is not None else None
-    for lo in range(0, n_win, batch):
-        hi = min(n_win, lo + batch)
-        out = ctx.render(pos_leaf[lo:hi], texture, light)
-        if tracks is not None and cfg.track_occlusion:
-            depths.append(out.depth.detach().to(positions.device))
-        rgb, mask = out.rgb, out.mask
-        if cfg.hard_coverage:
-            covered = (out.rast[..., 3] > 0).to(rgb.dtype)
-            rgb, mask = rgb * covered.unsqueeze(-1), mask * covered
-        n = hi - lo
-        l_img = image_loss(rgb, ctx.target_rgb[start + lo:start + hi]) * (n / n_win)
-        l_sil = silhouette_loss(mask, ctx.target_mask[start + lo:start + hi]) * (n / n_win)
-        chunk = cfg.lambda_image * l_img + cfg.lambda_sil * l_sil
-        if chunk.requires_grad:
-            chunk.backward()
-        sums["image"] += float(l_img.detach())
-        sums["silhouette"] += float(l_sil.detach())
-
-    # Regularizers on the physics side (float64).
     energy = sim.energy(positions, params).mean()
     cam_center = torch.as_tensor(ctx.camera.center, dtype=positions.dtype, device=positions.device)
     if n_win > 1:
@@ -365,8 +335,53 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
         track = torch.zeros((), dtype=positions.dtype, device=positions.device)
     held = sim.held_share(params, cfg.anchor_log10_range[0])
     reg = cfg.lambda_energy * energy + cfg.lambda_force * force + cfg.lambda_track * track + cfg.lambda_anchor * held
+    return energy, force, track, held, reg
+
+
+def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, cfg: ShapeConfig,
+                        texture: torch.Tensor, frames: int, tracks: VertexTracks | None = None,
+                        start: int = 0) -> dict[str, float]:
+    """Forward + backward of one epoch over frames start..frames-1 (start > 0: a window from a stored,
+    detached state); leaves the gradients in the parameters. Returns the loss terms."""
+    params = state.params
+    # record_function ranges (no cost without a profiler): benchmarks/bench_r1.py --profile splits a run by them
+    with record_function("saft.shape.simulate"):
+        positions = simulate_epoch(sim, state, frames, start)     # (F - start, V, 3) float64, with graph
+    # The renders may run on another device than the physics (saft.device.plan_devices).
+    pos_leaf = positions.detach().to(device=ctx.device, dtype=torch.float32).requires_grad_(True)
+    n_win = frames - start
+
+    # Render in chunks: each chunk's graph is freed after its backward into pos_leaf.
+    sums = {"image": 0.0, "silhouette": 0.0}
+    depths = []
+    batch = render_chunk(ctx.device)
+    light = params.light.to(device=ctx.device, dtype=torch.float32) if params.light is not None else None
+    for lo in range(0, n_win, batch):
+        hi = min(n_win, lo + batch)
+        with record_function("saft.shape.render"):
+            out = ctx.render(pos_leaf[lo:hi], texture, light)
+            if tracks is not None and cfg.track_occlusion:
+                depths.append(out.depth.detach().to(positions.device))
+            rgb, mask = out.rgb, out.mask
+            if cfg.hard_coverage:
+                covered = (out.rast[..., 3] > 0).to(rgb.dtype)
+                rgb, mask = rgb * covered.unsqueeze(-1), mask * covered
+            n = hi - lo
+            l_img = image_loss(rgb, ctx.target_rgb[start + lo:start + hi]) * (n / n_win)
+            l_sil = silhouette_loss(mask, ctx.target_mask[start + lo:start + hi]) * (n / n_win)
+            chunk = cfg.lambda_image * l_img + cfg.lambda_sil * l_sil
+            if chunk.requires_grad:
+                chunk.backward()
+            sums["image"] += float(l_img.detach())
+            sums["silhouette"] += float(l_sil.detach())
+
+    # Regularizers on the physics side (float64).
+    with record_function("saft.shape.regularizers"):
+        energy, force, track, held, reg = _regularizers(ctx, sim, params, cfg, positions, depths, tracks, start,
+                                                        frames)
     grad_pos = pos_leaf.grad.to(positions) if pos_leaf.grad is not None else torch.zeros_like(positions)
-    torch.autograd.backward([positions, reg], [grad_pos, torch.ones_like(reg)])
+    with record_function("saft.shape.backward"):   # the physics' adjoint and the regularizers' backward
+        torch.autograd.backward([positions, reg], [grad_pos, torch.ones_like(reg)])
 
     total = (cfg.lambda_image * sums["image"] + cfg.lambda_sil * sums["silhouette"]
              + cfg.lambda_energy * float(energy.detach()) + cfg.lambda_force * float(force.detach())
@@ -407,7 +422,8 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
     sched = FrameSchedule.restore(n_frames, cfg, state.schedule, state.epoch)
     ranges = {"log10_Y": phys.log10_Y_range, "log10_B": phys.log10_B_range, "log10_S": phys.log10_S_range,
               "anchor_log10": cfg.anchor_log10_range}
-    tracks = shape_tracks(ctx, cfg, texture, sim.template)
+    with record_function("saft.shape.tracks"):
+        tracks = shape_tracks(ctx, cfg, texture, sim.template)
     if cfg.window > 0 and state.states is None:
         zeros = sim.template.new_zeros((n_frames,) + tuple(sim.template.shape))
         state.states = FrameStates(zeros.clone(), zeros.clone(), 1)
@@ -428,13 +444,14 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
                 params.vertex_accel -= params.vertex_accel.mean(dim=(0, 1), keepdim=True)
         state.optimizer.zero_grad()
         terms = epoch_loss_and_grad(ctx, sim, state, cfg, texture, frames, tracks, start)
-        if start == 0:   # a window's loss covers other frames: not comparable
-            state.guard.check(frames, terms["loss"], params.tensors(), state.optimizer)
-        lr = lr_factor(state.epoch, sched.first_final_epoch(state.epoch), cfg) * state.guard.lr_scale
-        state.optimizer.set_lr_factor(lr)
-        frozen = outside_window(params, start)
-        state.optimizer.step()
-        restore_outside_window(params, start, frozen)
+        with record_function("saft.shape.step"):
+            if start == 0:   # a window's loss covers other frames: not comparable
+                state.guard.check(frames, terms["loss"], params.tensors(), state.optimizer)
+            lr = lr_factor(state.epoch, sched.first_final_epoch(state.epoch), cfg) * state.guard.lr_scale
+            state.optimizer.set_lr_factor(lr)
+            frozen = outside_window(params, start)
+            state.optimizer.step()
+            restore_outside_window(params, start, frozen)
         if state.states is not None:   # a full pass's step moved every acceleration: refresh before the next window
             state.states.stepped(start)
         with torch.no_grad():

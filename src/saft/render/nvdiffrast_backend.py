@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import functools
 import sys
-from collections import OrderedDict
 
 import torch
 
 from saft.render.output import RenderOutput
 from saft.render.reference import render_cloth_primitives
+from saft.render.topology import topology
 
 
 def load_nvdiffrast():
@@ -69,7 +69,8 @@ def nvdiffrast_available() -> bool:
 
 
 class NvdiffrastRasterizer:
-    """dr.RasterizeCudaContext on `device` plus the four ops; topology hashes cached per triangle tensor."""
+    """dr.RasterizeCudaContext on `device` plus the four ops. The int32 triangles and the antialias topology
+    hash are made once per triangle list (saft.render.topology): a render then does no host sync for them."""
 
     name = "nvdiffrast"
 
@@ -80,10 +81,9 @@ class NvdiffrastRasterizer:
             raise ValueError(f"the nvdiffrast backend needs a CUDA device, got {self.device}")
         self._dr = dr
         self.ctx = dr.RasterizeCudaContext(device=self.device)
-        self._topo: "OrderedDict[tuple, object]" = OrderedDict()
 
     def _tri(self, tri: torch.Tensor) -> torch.Tensor:
-        return tri.to(device=self.device, dtype=torch.int32).contiguous()
+        return topology(tri, self.device).tri32
 
     def render_cloth(self, vertices: torch.Tensor, pos: torch.Tensor, tri: torch.Tensor, uv: torch.Tensor,
                      tex: torch.Tensor, H: int, W: int, max_mip_level: int | None,
@@ -116,16 +116,12 @@ class NvdiffrastRasterizer:
     def antialias(self, color, rast, pos, tri):
         if pos.dim() == 2:
             pos = pos[None]
-        tri32 = self._tri(tri)
-        key = (tri32.data_ptr(), tuple(tri32.shape), int(tri32.sum()))
-        topo = self._topo.get(key)
-        if topo is None:
-            topo = self._dr.antialias_construct_topology_hash(tri32)
-            self._topo[key] = topo
-            if len(self._topo) > 8:
-                self._topo.popitem(last=False)
-        return self._dr.antialias(color.float().contiguous(), rast, pos.float().contiguous(), tri32,
-                                  topology_hash=topo)
+        topo = topology(tri, self.device)
+        cache = topo.backend_cache
+        if "nvdiffrast_hash" not in cache:
+            cache["nvdiffrast_hash"] = self._dr.antialias_construct_topology_hash(topo.tri32)
+        return self._dr.antialias(color.float().contiguous(), rast, pos.float().contiguous(), topo.tri32,
+                                  topology_hash=cache["nvdiffrast_hash"])
 
     def __repr__(self) -> str:
         return f"NvdiffrastRasterizer(device={self.device})"

@@ -40,7 +40,9 @@ def edge_neighbors_np(tri: np.ndarray) -> np.ndarray:
 class Topology:
     """tri (T, 3) int64; triT (3, T) and tri_flat_t = triT.reshape(-1) (vertex k of every triangle, then
     k+1: gathers whose backward is one index_add); nbr (T, 3) the triangle across each edge or −1;
-    boundary (T, 3) nbr < 0; nb (T, 3) nbr clamped to a valid index. All on one device."""
+    boundary (T, 3) nbr < 0; nb (T, 3) nbr clamped to a valid index. All on one device. tri32: tri as
+    contiguous int32 (nvdiffrast's index type), made on first use; backend_cache: what a backend derives
+    from the triangles once (nvdiffrast's antialias topology hash)."""
 
     def __init__(self, tri: torch.Tensor):
         self.tri = tri
@@ -50,6 +52,14 @@ class Topology:
         self.boundary = self.nbr < 0
         self.nb = self.nbr.clamp(min=0)
         self._batched: dict = {}
+        self._tri32 = None
+        self.backend_cache: dict = {}
+
+    @property
+    def tri32(self) -> torch.Tensor:
+        if self._tri32 is None:
+            self._tri32 = self.tri.to(torch.int32).contiguous()
+        return self._tri32
 
     def batched_triT(self, B: int, V: int) -> torch.Tensor:
         """(3, B·T): vertex k of triangle t of image b as a row of the flattened (B·V) vertices."""
