@@ -6,7 +6,8 @@
 #   physics     the solver comparison on CUDA (32x32, 50 frames, forward + backward), the CPU default beside it
 #   render      the render benchmark at 700x800 and 350x400: PyTorch and nvdiffrast on CUDA, PyTorch on the CPU
 #   r1          R1, texture and shape phases, --device auto: wall time and mean CD2 (set SAFT_PHYSICS_DEVICE
-#               to cpu or cuda to override auto's physics device for an A/B run)
+#               to cpu or cuda to override auto's physics device for an A/B run); run right after nvdiffrast
+#   r1b         (not in the default steps) R1 with the perturbation of repeat 1, compiled kernels cached
 #   profile     (not in the default steps) R1's first 10 frames, 10 final epochs, under torch.profiler: host and
 #               device time per part of the shape phase (bench_r1.py --profile)
 # Then a table, and one line per number (name=value). Each step has its own time limit, so a hung step
@@ -49,6 +50,11 @@ ok, why = nvdiffrast_status()
 print('nvdiffrast_ok=%d' % ok, why)
 print('nvdiffrast_first_use_s=%.1f' % (time.perf_counter() - t))
 import sys; sys.exit(0 if ok else 1)"
+# R1 first (the headline number), with torch.compile's cache emptied so that its wall time includes the
+# physics kernels' compilation, as on a fresh machine. r1b (not in the default steps), run last: R1 again with
+# the perturbation of repeat 1 and the compiled kernels from r1's cache, as a user's second run.
+r1cache=$(mktemp -d)
+want r1 && TORCHINDUCTOR_CACHE_DIR=$r1cache step r1 300 $py benchmarks/bench_r1.py --device auto --out /tmp/saft-gpu-r1
 want info && step info 120 $py -m saft info
 want pytest && step pytest 300 $py -m pytest -q -m cuda -p no:cacheprovider ${SAFT_GPU_CHECK_TESTS:-tests}
 if want physics; then
@@ -61,9 +67,10 @@ fi
 want render && step render 180 bash -c "$py benchmarks/bench_render.py --device cuda --backend nvdiffrast --threads 1 --runs 20 --profile && \
                          $py benchmarks/bench_render.py --device cuda --backend torch --threads 1 --runs 20 && \
                          $py benchmarks/bench_render.py --device cpu --backend torch --threads 8 --runs 5"
+want r1b && TORCHINDUCTOR_CACHE_DIR=$r1cache step r1b 300 $py benchmarks/bench_r1.py --device auto --first-repeat 1 \
+                  --out /tmp/saft-gpu-r1b
 want profile && step profile 240 $py benchmarks/bench_r1.py --device auto --frames 10 --set shape.final_epochs=10 \
                           --profile --out /tmp/saft-gpu-profile
-want r1 && step r1 420 $py benchmarks/bench_r1.py --device auto --out /tmp/saft-gpu-r1
 
 echo
 echo "=== summary"

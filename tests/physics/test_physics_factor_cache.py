@@ -28,10 +28,10 @@ def _case(scale: float = 1.0):
     return t, p, list(range(13))
 
 
-def _run(t, p, top, cache=None, first_step=0, frames=FRAMES, x0=None):
+def _run(t, p, top, cache=None, first_step=0, frames=FRAMES, x0=None, solver="auto"):
     stats = {}
     x = rollout(t, t.template if x0 is None else x0, None, p, num_frames=frames, pinned=top, stats=stats,
-                factor_cache=cache, first_step=first_step)
+                factor_cache=cache, first_step=first_step, solver=solver)
     x.pow(2).sum().backward()
     return x.detach(), p.a_vert.grad.clone(), stats
 
@@ -52,6 +52,22 @@ def test_cached_factors_give_the_same_motion_and_gradients_with_fewer_factorisat
     np.testing.assert_allclose(g1.numpy(), g_ref.numpy(), rtol=1e-5, atol=1e-9 * float(g_ref.abs().max()))
     assert s_ref["factorizations"] > 3  # the case does refactorise without a cache
     assert s2["factorizations"] < s2_ref["factorizations"] / 2
+
+
+def test_the_dense_solver_keeps_its_factors_in_the_cache_too():
+    """The CUDA default (solver_dense) on the CPU: the next epoch's rollout starts from the kept dense factors
+    (none made at its start) and gives the uncached rollout's motion and gradients; they are not checkpointed."""
+    t, p, top = _case()
+    cache = FactorCache()
+    x1, g1, s1 = _run(t, p, top, cache, solver="dense")
+    assert len(cache.dense) == s1["factorizations"] + s1["bwd_factorizations"] > 0 and len(cache) == 0
+    t, p2, top = _case(1.01)
+    x2, g2, s2 = _run(t, p2, top, cache, solver="dense")
+    x2_ref, g2_ref, s2_ref = _run(*_case(1.01), solver="dense")
+    np.testing.assert_allclose(x2.numpy(), x2_ref.numpy(), rtol=0, atol=5e-8)
+    np.testing.assert_allclose(g2.numpy(), g2_ref.numpy(), rtol=1e-4, atol=1e-7 * float(g2_ref.abs().max()))
+    assert s2_ref["factorizations"] >= 1 and s2["factorizations"] < s2_ref["factorizations"]
+    assert "dense" not in str(cache.state_dict().keys())
 
 
 def test_windowed_rollouts_key_the_cache_by_absolute_substep():

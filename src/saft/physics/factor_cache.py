@@ -12,6 +12,12 @@ solver's ``refactor_after`` iterations: in later epochs almost never.
 What is kept is only what the numba CG applies (``pcg_numba.factors_from_superlu``: numpy arrays), never
 SuperLU's own object, so that the cache is part of the shape phase's checkpoint and a resumed run makes the
 same decisions, bit for bit, as an uninterrupted one.
+
+The dense factors of the CUDA solver (``solver_dense.DenseFactorSolver``, R1: a 37.7 MB float32 inverse each)
+are kept in ``dense`` the same way, on the device, and are not checkpointed: a resumed run refactorises once
+(runs on CUDA are not bit for bit repeatable anyway: nvdiffrast's backward adds with atomics). Without them
+every rollout of an epoch began with a fresh factorisation: 178 of them in a 10-frame R1 run of 45 epochs,
+1.16 s of its 8.1 s of GPU time (H100, BENCHMARKS.md "GPU").
 """
 
 from __future__ import annotations
@@ -32,6 +38,8 @@ class FactorCache:
         # (a 25 x 25 cloth's factor is ~0.6 MB: the 32-frame benchmark scenes' checkpoints grew from 5 to
         # 78 MB, under this budget, so the measured runs never thinned)
         self.budget_bytes = budget_bytes
+        self.dense: dict[int, tuple] = {}   # {step: (serial, factor tensor)}: solver_dense's, not checkpointed
+        self.dense_budget_bytes = 1 << 30
 
     def __len__(self) -> int:
         return len(self.entries)

@@ -107,7 +107,7 @@ class _Sim:
         self.kernels = StepKernels(t, hessian, compile=compile, backend=kernels)
         self.stats = SolveStats()
         self.stats_out = None  # the caller's stats dict (backward counters are added as bwd_*)
-        self.factor_cache = None  # a FactorCache shared with other rollouts (CPU "lu" solver only)
+        self.factor_cache = None  # a FactorCache shared with other rollouts ("lu" and the dense solvers)
         self.first_step = 0       # the absolute substep of this rollout's first one, the cache's key
         self.use_numpy = (solver in ("lu", "cholmod")) or (solver == "auto" and t.device.type == "cpu")
         self.m3 = t.mass[:, None].expand(-1, 3)  # (V, 3)
@@ -411,7 +411,7 @@ def rollout(
     kernels: element kernel backend, "auto" (numba on CPU float64 with the projected Hessian unless compile
     is on, else torch), "numba" or "torch" (None: the SAFT_PHYSICS_KERNELS environment variable, "auto").
     anchor_positions: (V, 3) where params.anchor's springs pull (None: x0); constants, no gradient.
-    factor_cache: a ``FactorCache`` kept across rollouts of the same frames (the CPU "lu" solver): the
+    factor_cache: a ``FactorCache`` kept across rollouts of the same frames ("lu" and the dense solvers): the
     forward pass preconditions each substep with the kept factor nearest to it, as the adjoint does, and
     keeps the factors it makes; ``first_step`` is the absolute substep of this rollout's first substep
     (frame * substeps for a rollout that starts at that frame). Results agree with a rollout without it to

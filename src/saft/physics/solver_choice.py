@@ -28,7 +28,7 @@ def solver_for(topology: ClothTopology, solver: str, tol: float, stats: SolveSta
         solver = "dense" if topology.device.type != "cpu" else "lu"
     if solver in DENSE_SOLVERS:
         return DenseFactorSolver(topology.csr_indptr, topology.csr_indices, topology.device, tol=tol, stats=stats,
-                                 compile=compile, **DENSE_SOLVERS[solver])
+                                 compile=compile, cache=cache, step_offset=first_step, **DENSE_SOLVERS[solver])
     if solver == "cholmod":
         if not _solver.HAVE_CHOLMOD:   # read at call time: tests set it
             raise ValueError("solver='cholmod' needs scikit-sparse (sksparse.cholmod), which is not importable")

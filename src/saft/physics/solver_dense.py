@@ -187,7 +187,7 @@ class DenseFactorSolver:
                  refactor_after: int = 20, precond: str = "inv32", refactor_every_solve: bool = False,
                  block: int = 2, graphs: bool | None = None, compile: bool = False,
                  stats: SolveStats | None = None, keep_factors_bytes: int = 1 << 30,
-                 refactor_age: int | None = None):
+                 refactor_age: int | None = None, cache=None, step_offset: int = 0):
         if precond not in PRECONDS:
             raise ValueError(f"precond must be one of {PRECONDS}, got {precond!r}")
         indptr = np.ascontiguousarray(indptr, dtype=np.int64)
@@ -210,17 +210,21 @@ class DenseFactorSolver:
         self._serial = 0  # the current factor's number from _SERIAL
         self._last_its = 0
         # factors made during the forward pass, by substep (as ReusedLUSolver): the adjoint solve of substep i
-        # is preconditioned by the one made nearest to i
+        # is preconditioned by the one made nearest to i. With a FactorCache (``cache``, factor_cache.py) they
+        # live in its ``dense`` table, by absolute substep (this rollout's substep i is step_offset + i), and
+        # the forward's solves too start from the kept factor nearest to them, made in an earlier epoch.
         self.step = None
-        self.factors: dict[int, tuple[int, torch.Tensor]] = {}
-        self.keep_factors_bytes = keep_factors_bytes
+        self.cache = cache
+        self.step_offset = int(step_offset)
+        self.factors: dict[int, tuple[int, torch.Tensor]] = {} if cache is None else cache.dense
+        self.keep_factors_bytes = keep_factors_bytes if cache is None else cache.dense_budget_bytes
 
     def at_step(self, i: int | None, select: bool = False):
         """Tag the following solves with substep ``i``; with ``select`` switch to the kept factor made nearest
         to it (the backward pass walks the substeps in reverse)."""
-        self.step = i
-        if select and self.factors and i is not None:
-            j = min(self.factors, key=lambda k: abs(k - i))
+        self.step = None if i is None else i + self.step_offset
+        if (select or self.cache is not None) and self.factors and i is not None:
+            j = min(self.factors, key=lambda k: abs(k - self.step))
             self._serial, self.F = self.factors[j]
             self._made_at = j
 
