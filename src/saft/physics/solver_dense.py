@@ -15,6 +15,8 @@ Preconditioners (``precond``):
            chain of small dependent kernels on a GPU). CG itself stays float64, with the CPU's flexible
            (Polak-Ribiere) beta. Inverse: ~2/3 n^3 flops more than the factor, once per factorisation.
   "inv64"  the same in float64.
+  "invbf16" the same in bfloat16 (18.9 MB on R1: half the GEMV's memory traffic, float32's range, 3 digits;
+           CG stays float64, so only the iteration count can change).
   "chol"   the Cholesky factor itself, applied by cholesky_solve (two triangular solves).
 ``refactor_every_solve``: factorise every A (a direct solve; CG then converges in one or two iterations).
 ``refactor_age``: also factorise when the current factor was made more than that many substeps away. Off by
@@ -44,7 +46,8 @@ from torch.profiler import record_function
 from saft.physics.cuda_graphs import Graphed, graphs_wanted
 from saft.physics.solver import SolveStats
 
-PRECONDS = ("inv32", "inv64", "chol")
+PRECONDS = ("inv32", "inv64", "invbf16", "chol")
+_PRECOND_DTYPE = {"inv32": torch.float32, "invbf16": torch.bfloat16}  # else float64
 _TINY = 1e-300  # clamps CG's denominators: 0 / 0 (a zero residual) gives 0
 
 
@@ -94,7 +97,7 @@ class _Work:
         # the scalars as 1-element arrays: torch.compile turned 0-dim CPU tensors into constants
         self.rz, self.rr, self.atol2, self.tol2, self.its = (torch.zeros(1, **f) for _ in range(5))
         self.tol = None  # the tolerance tol2 holds the square of
-        pdt = torch.float32 if precond == "inv32" else torch.float64
+        pdt = _PRECOND_DTYPE.get(precond, torch.float64)
         self.P = torch.eye(n, dtype=pdt, device=device)  # the preconditioner (inverse or Cholesky factor)
         self.owner = None
         rec = graphs and precond != "chol"  # cholesky_solve stays eager (cuSOLVER potrs is not recorded)
@@ -119,8 +122,8 @@ class _Work:
     def apply_precond(self, r):
         if self.precond == "chol":
             return torch.cholesky_solve(r[:, None], self.P)[:, 0]
-        if self.precond == "inv32":
-            return torch.mv(self.P, r.to(torch.float32)).to(torch.float64)
+        if self.P.dtype != torch.float64:
+            return torch.mv(self.P, r.to(self.P.dtype)).to(torch.float64)
         return torch.mv(self.P, r)
 
     def _setup(self):
@@ -261,8 +264,7 @@ class DenseFactorSolver:
             else:
                 F = torch.cholesky_inverse(L)
                 F = 0.5 * (F + F.T)  # exactly symmetric (CG's preconditioner must be)
-                if self.precond == "inv32":
-                    F = F.to(torch.float32)
+                F = F.to(_PRECOND_DTYPE.get(self.precond, torch.float64))
             self._serial = next(_SERIAL)
             self.F = F
             self._made_at = self.step
