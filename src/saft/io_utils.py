@@ -107,8 +107,9 @@ def read_image(path: str | Path) -> np.ndarray:
     return out
 
 
-def write_image(path: str | Path, image: np.ndarray) -> None:
-    """Write a float image in [0, 1] (H×W, H×W×1, ×3 or ×4) as an 8-bit PNG/JPEG, atomically."""
+def write_image(path: str | Path, image: np.ndarray, compress_level: int | None = None) -> None:
+    """Write a float image in [0, 1] (H×W, H×W×1, ×3 or ×4) as an 8-bit PNG/JPEG, atomically.
+    compress_level: PNG's zlib level (None: Pillow's default, 6)."""
     import imageio.v3 as iio
 
     img = np.asarray(image, dtype=np.float32)
@@ -116,8 +117,9 @@ def write_image(path: str | Path, image: np.ndarray) -> None:
         img = img[:, :, 0]
     img8 = (np.clip(img, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
     path = Path(path)
+    extra = {} if compress_level is None or path.suffix.lower() != ".png" else {"compress_level": compress_level}
     with atomic_path(path) as tmp:
-        iio.imwrite(tmp, img8, extension=path.suffix)
+        iio.imwrite(tmp, img8, extension=path.suffix, **extra)
 
 
 def resize_images(images, height: int, width: int):
