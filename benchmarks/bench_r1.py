@@ -127,7 +127,8 @@ def run(ablation: str, out: Path, device: str, extra: list[str], frames: int | N
           f"CD1 {mean['cd1_cm']:.3f} cm  p2s {mean['p2s_l1_mm']:.2f} mm  δ {mean.get('depth_cm', float('nan')):.3f} cm  "
           f"wall {wall / 60:.1f} min  CPU {cpu / 60:.1f} min", flush=True)
     t = outcome.timings
-    print(f"  time (s): load {t.get('load_frames', 0):.1f}, texture {t.get('texture', 0):.1f} (epochs "
+    print(f"  time (s): set-up {t.get('setup', 0):.1f}, frames {t.get('load_frames', 0):.1f}, estimate "
+          f"{t.get('estimate', 0):.1f}, texture {t.get('texture', 0):.1f} (epochs "
           f"{epochs.get('texture', 0):.1f}), shape {t.get('shape', 0):.1f} (epochs {epochs.get('shape', 0):.1f}, "
           f"the rest {t.get('shape', 0) - epochs.get('shape', 0):.1f}), outputs {t.get('outputs', 0):.1f}", flush=True)
     return row
