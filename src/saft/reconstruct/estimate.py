@@ -1,9 +1,10 @@
 """Before the first epoch: how long the texture and shape phases will take and how much memory they need.
 
 Measured, not guessed: one render of frame 0 and one simulation substep of the template pulled by gravity
-(forward + backward, with a fresh factorisation) are timed on the run's own device, and the bytes autograd
-keeps for them are counted. A substep of the run that reuses a factorisation is cheaper, one of a cloth in
-fast motion can be dearer (more solver iterations): take the estimate as good to a factor of a few. The phases repeat these
+(forward + backward, reusing the factorisation of an untimed first substep, as the run's substeps mostly do)
+are timed on the run's own device, and the bytes autograd keeps for them are counted. A substep of a cloth
+in fast motion can be dearer (more solver iterations, a refactorisation now and then): take the estimate as
+good to a factor of two. The phases repeat these
 steps a known number of times (the epoch schedule), so
 
     time   ≈ texture epochs · t_render + Σ_shape epochs (frames · t_render + (frames − 1) · t_transition)
@@ -26,6 +27,7 @@ from dataclasses import dataclass
 import torch
 
 from saft.physics import PhysicsParams, rollout
+from saft.physics.factor_cache import FactorCache
 from saft.reconstruct.config import SaftConfig
 from saft.reconstruct.frame_schedule import simulated_frames_per_epoch
 from saft.reconstruct.shape_phase import render_chunk
@@ -94,12 +96,18 @@ def measure_run(ctx, sim, cfg: SaftConfig, num_frames: int, gravity) -> RunEstim
                            log10_S=scalar(phys.log10_S_init), damping=torch.tensor(phys.damping, dtype=dtype, device=device),
                            a_const=torch.as_tensor(gravity, dtype=dtype, device=device),
                            a_vert=torch.zeros(1, V, 3, dtype=dtype, device=device, requires_grad=True))
+    # The timed substep reuses the factor the untimed one made, as the run's substeps do (factors are kept
+    # across epochs, physics/factor_cache.py): timing a fresh factorisation made R1's estimate 16 min on the
+    # CPU for a run of 7.5 min, and a factorisation is ~6 times a whole substep on an H100.
+    factors = FactorCache()
+
     def substep():
         return rollout(sim.topology, sim.template, None, params, num_frames=2, substeps=1,
-                       frame_dt=sim.frame_dt / phys.substeps, pinned=sim.pinned, hessian=phys.hessian)[1].square().sum()
+                       frame_dt=sim.frame_dt / phys.substeps, pinned=sim.pinned, hessian=phys.hessian,
+                       factor_cache=factors)[1].square().sum()
 
-    # untimed first: the CPU kernels are compiled (numba) or loaded from their cache on first use, a
-    # one-off cost of seconds that would otherwise be multiplied by every substep of the run
+    # untimed first: the CPU kernels are compiled (numba) or loaded from their cache on first use, on CUDA
+    # compiled by torch.compile, a one-off cost of seconds that would otherwise be multiplied by every substep
     substep().backward()
     t_sub, b_sub = _timed(substep)
     t_step, b_step = t_sub * phys.substeps, b_sub * phys.substeps
