@@ -388,6 +388,24 @@ def test_estimate_leaves_out_one_off_first_call_costs(native_scene, tmp_path, ca
     assert len(calls) >= 2 and seen["est"].transition_seconds < 0.5
 
 
+def test_estimate_times_a_substep_that_reuses_the_factor(native_scene, tmp_path, monkeypatch):
+    # the run's substeps reuse factors kept across epochs: the timed substep must not factorise afresh
+    from saft.reconstruct import estimate, reconstruct
+    from saft.reconstruct.config import load_saft_config
+
+    stats = []
+    real = estimate.rollout
+
+    def counted(*args, **kw):
+        stats.append({})
+        return real(*args, stats=stats[-1], **kw)
+
+    monkeypatch.setattr(estimate, "rollout", counted)
+    cfg = load_saft_config(None, TINY[4::2] + ['run.device="cpu"'])
+    reconstruct(load_scene(native_scene), cfg, tmp_path / "out", quiet=True)
+    assert len(stats) == 2 and stats[0]["factorizations"] >= 1 and stats[1]["factorizations"] == 0, stats
+
+
 def test_appearance_interrupt_keeps_every_finished_epoch(native_scene, tmp_path, capsys):
     from saft.reconstruct import reconstruct
     from saft.reconstruct.checkpoint import load_checkpoint
