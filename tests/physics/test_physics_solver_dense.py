@@ -176,6 +176,22 @@ def test_solver_names():
         _solver(t, precond="nope")
 
 
+def test_dense_variant_of_auto_is_chosen_by_the_environment(monkeypatch):
+    """SAFT_DENSE_SOLVER picks auto's solver off the CPU (for A/B runs on a GPU); a wrong name is an error
+    that names the variable. The CPU's auto stays "lu" whatever it says."""
+    from types import SimpleNamespace
+
+    from saft.physics.solver import SolveStats
+    from saft.physics.solver_choice import ENV_DENSE_SOLVER, solver_for
+
+    v, q = grid_mesh(2)
+    t = ClothTopology.from_quads(v, q)
+    monkeypatch.setenv(ENV_DENSE_SOLVER, "nope")
+    with pytest.raises(ValueError, match=ENV_DENSE_SOLVER):
+        solver_for(SimpleNamespace(device=torch.device("cuda")), "auto", 1e-6, SolveStats())
+    assert type(solver_for(t, "auto", 1e-6, SolveStats())).__name__ == "ReusedLUSolver"
+
+
 @pytest.mark.cuda
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs an NVIDIA GPU")
 def test_cuda_default_is_the_graphed_dense_solver_and_matches_the_cpu():

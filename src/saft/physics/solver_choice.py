@@ -3,6 +3,8 @@ classes (solver: the CPU's reused incomplete LU, CHOLMOD, Jacobi CG; solver_dens
 
 from __future__ import annotations
 
+import os
+
 import torch
 
 from saft.physics import solver as _solver
@@ -19,6 +21,9 @@ DENSE_SOLVERS = {
     "direct": dict(precond="chol", refactor_every_solve=True),  # a fresh factor every solve
 }
 SOLVERS = ("auto", "lu", "cholmod", "cg", *DENSE_SOLVERS)
+# For A/B runs of whole reconstructions on a GPU (benchmarks/gpu_check.sh): the dense variant "auto" takes off
+# the CPU, e.g. densebf16 (0.350 s against dense's 0.408 s for R1's template on an H100, not yet run on R1)
+ENV_DENSE_SOLVER = "SAFT_DENSE_SOLVER"
 
 
 def solver_for(topology: ClothTopology, solver: str, tol: float, stats: SolveStats, compile: bool = False,
@@ -26,7 +31,9 @@ def solver_for(topology: ClothTopology, solver: str, tol: float, stats: SolveSta
     if solver == "auto":
         # never depends on what is importable: CHOLMOD (opt-in) gives different numbers within the tolerance,
         # and reconstructions are sensitive to that noise. Other devices: the reused dense factor (solver_dense)
-        solver = "dense" if topology.device.type != "cpu" else "lu"
+        solver = os.environ.get(ENV_DENSE_SOLVER, "dense") if topology.device.type != "cpu" else "lu"
+        if solver not in DENSE_SOLVERS and solver != "lu":
+            raise ValueError(f"{ENV_DENSE_SOLVER}={solver!r} is not one of {', '.join(DENSE_SOLVERS)}")
     if solver in DENSE_SOLVERS:
         return DenseFactorSolver(topology.csr_indptr, topology.csr_indices, topology.device, tol=tol, stats=stats,
                                  compile=compile, cache=cache, step_offset=first_step, **DENSE_SOLVERS[solver])
@@ -45,4 +52,4 @@ def solver_for(topology: ClothTopology, solver: str, tol: float, stats: SolveSta
     raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
 
 
-__all__ = ["DENSE_SOLVERS", "SOLVERS", "solver_for"]
+__all__ = ["DENSE_SOLVERS", "ENV_DENSE_SOLVER", "SOLVERS", "solver_for"]
