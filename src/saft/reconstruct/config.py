@@ -132,6 +132,14 @@ class ShapeConfig:
     # loses the independent scenes"); at 627f785, R1 perturbation 1 with 0.03: 0.479 (last 1.09),
     # the default 0.425 (0.65). Kept off until repeats on both decide.
     track_drift: float = 0.0
+    # Soft confidence instead of that cut (0 = off): each track-frame weighs exp(−(d / track_drift_scale)²)
+    # in the track loss, d the chromaticity drift under it so far (saft.reconstruct.tracks.drift_confidence).
+    track_drift_scale: float = 0.0
+    # Chamfer silhouette term (saft.reconstruct.silhouette_chamfer; 0 = off): λ of the distance of the
+    # projected vertices to the target mask and of the mask's contour to the projected mesh border, Huber
+    # beyond chamfer_huber pixels. Long-range gradients where the soft-raster silhouette only pulls edge pixels.
+    lambda_chamfer: float = 0.0
+    chamfer_huber: float = 3.0
     # Skip a track where the current reconstruction hides its vertex behind another part of the cloth by
     # more than the mean edge length (a fold the flow's forward-backward check let through).
     track_occlusion: bool = True

@@ -35,6 +35,7 @@ from saft.reconstruct.context import PhaseContext
 from saft.reconstruct.force_field import affine_basis, total_accelerations
 from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_loss
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
+from saft.reconstruct.silhouette_chamfer import MaskDistances, boundary_edges, chamfer_loss, mask_distances
 from saft.reconstruct.step_guard import StepGuard
 from saft.reconstruct.tracks import VertexTracks, compute_vertex_tracks, hidden_vertices, track_loss
 
@@ -314,7 +315,8 @@ def along_ray_weight(cfg: ShapeConfig, sim: ShapeSimulator) -> float:
 
 def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, cfg: ShapeConfig,
                         texture: torch.Tensor, frames: int, tracks: VertexTracks | None = None,
-                        start: int = 0) -> dict[str, float]:
+                        start: int = 0,
+                        chamfer: tuple[MaskDistances, torch.Tensor] | None = None) -> dict[str, float]:
     """Forward + backward of one epoch over frames start..frames-1 (start > 0: a window from a stored,
     detached state); leaves the gradients in the parameters. Returns the loss terms."""
     params = state.params
@@ -363,21 +365,27 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
         track = track_loss(positions, tracks, ctx.camera, cfg.track_huber, first_frame=start, hidden=hidden)
     else:
         track = torch.zeros((), dtype=positions.dtype, device=positions.device)
+    if chamfer is not None:
+        sil_far = chamfer_loss(positions, chamfer[0], chamfer[1], ctx.camera, cfg.chamfer_huber, first_frame=start)
+    else:
+        sil_far = torch.zeros((), dtype=positions.dtype, device=positions.device)
     held = sim.held_share(params, cfg.anchor_log10_range[0])
-    reg = cfg.lambda_energy * energy + cfg.lambda_force * force + cfg.lambda_track * track + cfg.lambda_anchor * held
+    reg = (cfg.lambda_energy * energy + cfg.lambda_force * force + cfg.lambda_track * track
+           + cfg.lambda_anchor * held + cfg.lambda_chamfer * sil_far)
     grad_pos = pos_leaf.grad.to(positions) if pos_leaf.grad is not None else torch.zeros_like(positions)
     torch.autograd.backward([positions, reg], [grad_pos, torch.ones_like(reg)])
 
     total = (cfg.lambda_image * sums["image"] + cfg.lambda_sil * sums["silhouette"]
              + cfg.lambda_energy * float(energy.detach()) + cfg.lambda_force * float(force.detach())
-             + cfg.lambda_track * float(track.detach()) + cfg.lambda_anchor * float(held.detach()))
+             + cfg.lambda_track * float(track.detach()) + cfg.lambda_anchor * float(held.detach())
+             + cfg.lambda_chamfer * float(sil_far.detach()))
     if cfg.normalize_loss and total > 0:
         # Dividing the loss by its detached value scales every gradient by 1/L (scale-free steps).
         for t in params.tensors().values():
             if t.grad is not None:
                 t.grad.div_(total)
     return {"loss": total, "energy": float(energy.detach()), "force": float(force.detach()),
-            "track": float(track.detach()), "held": float(held.detach()), **sums}
+            "track": float(track.detach()), "held": float(held.detach()), "chamfer": float(sil_far.detach()), **sums}
 
 
 def lr_factor(epoch: int, first_final: float, cfg: ShapeConfig) -> float:
@@ -397,7 +405,16 @@ def shape_tracks(ctx: PhaseContext, cfg: ShapeConfig, texture: torch.Tensor, tem
         depth0 = ctx.render(ctx.template_positions[None].to(torch.float32), texture).depth[0]
     return compute_vertex_tracks(ctx.target_rgb, ctx.target_mask, template, ctx.camera, depth0,
                                  cfg.track_fb_threshold, cfg.track_reanchor_radius, cfg.track_jump_ratio,
-                                 cfg.track_jump_floor, cfg.track_drift)
+                                 cfg.track_jump_floor, cfg.track_drift, cfg.track_drift_scale)
+
+
+def shape_chamfer(ctx: PhaseContext, cfg: ShapeConfig, device) -> tuple[MaskDistances, torch.Tensor] | None:
+    """The chamfer silhouette term's targets (distance maps, contours; on `device`) and the mesh's border
+    edges, or None when it is off."""
+    if cfg.lambda_chamfer <= 0:
+        return None
+    edges = torch.as_tensor(boundary_edges(ctx.triangles.cpu().numpy()), device=device)
+    return mask_distances(ctx.target_mask.cpu().numpy(), device=device), edges
 
 
 def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, phys: PhysicsConfig,
@@ -408,6 +425,7 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
     ranges = {"log10_Y": phys.log10_Y_range, "log10_B": phys.log10_B_range, "log10_S": phys.log10_S_range,
               "anchor_log10": cfg.anchor_log10_range}
     tracks = shape_tracks(ctx, cfg, texture, sim.template)
+    chamfer = shape_chamfer(ctx, cfg, sim.template.device)
     if cfg.window > 0 and state.states is None:
         zeros = sim.template.new_zeros((n_frames,) + tuple(sim.template.shape))
         state.states = FrameStates(zeros.clone(), zeros.clone(), 1)
@@ -427,7 +445,7 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
             with torch.no_grad():
                 params.vertex_accel -= params.vertex_accel.mean(dim=(0, 1), keepdim=True)
         state.optimizer.zero_grad()
-        terms = epoch_loss_and_grad(ctx, sim, state, cfg, texture, frames, tracks, start)
+        terms = epoch_loss_and_grad(ctx, sim, state, cfg, texture, frames, tracks, start, chamfer)
         if start == 0:   # a window's loss covers other frames: not comparable
             state.guard.check(frames, terms["loss"], params.tensors(), state.optimizer)
         lr = lr_factor(state.epoch, sched.first_final_epoch(state.epoch), cfg) * state.guard.lr_scale
