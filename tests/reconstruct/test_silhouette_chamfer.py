@@ -56,11 +56,13 @@ def test_chamfer_is_lowest_on_the_target_and_pulls_from_afar():
     mask = _mask_of(verts, tris, cam)[None]
     dists = mask_distances(mask)
     edges = torch.as_tensor(boundary_edges(tris))
-    at_truth = float(chamfer_loss(verts[None], dists, edges, cam, huber_delta=3.0))
+    at_truth = float(sum(chamfer_loss(verts[None], dists, edges, cam, huber_delta=3.0)))
     grads = {}
     for shift in (0.02, 0.08):                        # about 3 and 13 px to the right
         offset = torch.tensor([shift, 0.0, 0.0], dtype=torch.float64, requires_grad=True)
-        loss = chamfer_loss((verts + offset)[None], dists, edges, cam, huber_delta=3.0)
+        outside, cover = chamfer_loss((verts + offset)[None], dists, edges, cam, huber_delta=3.0)
+        assert float(outside.detach()) > 0 and float(cover.detach()) > 0
+        loss = outside + cover
         loss.backward()
         assert float(loss.detach()) > 5 * at_truth
         grads[shift] = float(offset.grad[0])
@@ -74,9 +76,12 @@ def test_chamfer_sees_a_cloth_smaller_than_the_mask():
     dists = mask_distances(_mask_of(verts, tris, cam)[None])
     edges = torch.as_tensor(boundary_edges(tris))
     scale = torch.tensor(0.6, dtype=torch.float64, requires_grad=True)
-    loss = chamfer_loss((verts * scale)[None], dists, edges, cam, huber_delta=3.0)
-    loss.backward()
+    outside, cover = chamfer_loss((verts * scale)[None], dists, edges, cam, huber_delta=3.0)
+    assert float(outside.detach()) == 0.0             # every vertex on the mask: only the contour sees it
+    cover.backward()
     assert float(scale.grad) < 0                      # the shrunken cloth inside the mask is pulled outwards
+    _, off = chamfer_loss((verts * scale)[None], dists, edges, cam, huber_delta=3.0, cover=False)
+    assert float(off.detach()) == 0.0
 
 
 def test_a_reconstruction_with_the_chamfer_term_and_soft_track_confidence_runs(tmp_path):
@@ -93,6 +98,7 @@ def test_a_reconstruction_with_the_chamfer_term_and_soft_track_confidence_runs(t
     cfg = load_config(SaftConfig, None, ["texture.epochs=5", "texture.size=32", 'run.device="cpu"',
                                          "appearance.enabled=false", "shape.window=2", "shape.add_frame_every=2",
                                          "shape.final_epochs=2", "shape.lambda_chamfer=1e3",
+                                         "shape.lambda_chamfer_cover=1e3",
                                          "shape.track_drift_scale=0.03"])
     reconstruct(scene, cfg, tmp_path / "out", quiet=True)
     assert np.isfinite(read_result(tmp_path / "out").vertices).all()

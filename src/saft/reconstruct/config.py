@@ -135,10 +135,12 @@ class ShapeConfig:
     # Soft confidence instead of that cut (0 = off): each track-frame weighs exp(−(d / track_drift_scale)²)
     # in the track loss, d the chromaticity drift under it so far (saft.reconstruct.tracks.drift_confidence).
     track_drift_scale: float = 0.0
-    # Chamfer silhouette term (saft.reconstruct.silhouette_chamfer; 0 = off): λ of the distance of the
-    # projected vertices to the target mask and of the mask's contour to the projected mesh border, Huber
-    # beyond chamfer_huber pixels. Long-range gradients where the soft-raster silhouette only pulls edge pixels.
+    # Chamfer silhouette terms (saft.reconstruct.silhouette_chamfer; 0 = off): λ of the distance of the
+    # projected vertices to the target mask (lambda_chamfer) and of the mask's contour to the projected mesh
+    # border (lambda_chamfer_cover), Huber beyond chamfer_huber pixels. Long-range gradients where the
+    # soft-raster silhouette only pulls edge pixels. The log's "chamfer" column is their weighted sum.
     lambda_chamfer: float = 0.0
+    lambda_chamfer_cover: float = 0.0
     chamfer_huber: float = 3.0
     # Skip a track where the current reconstruction hides its vertex behind another part of the cloth by
     # more than the mean edge length (a fold the flow's forward-backward check let through).

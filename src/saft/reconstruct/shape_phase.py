@@ -366,19 +366,21 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
     else:
         track = torch.zeros((), dtype=positions.dtype, device=positions.device)
     if chamfer is not None:
-        sil_far = chamfer_loss(positions, chamfer[0], chamfer[1], ctx.camera, cfg.chamfer_huber, first_frame=start)
+        outside, cover = chamfer_loss(positions, chamfer[0], chamfer[1], ctx.camera, cfg.chamfer_huber,
+                                      first_frame=start, cover=cfg.lambda_chamfer_cover > 0)
+        sil_far = cfg.lambda_chamfer * outside + cfg.lambda_chamfer_cover * cover
     else:
         sil_far = torch.zeros((), dtype=positions.dtype, device=positions.device)
     held = sim.held_share(params, cfg.anchor_log10_range[0])
     reg = (cfg.lambda_energy * energy + cfg.lambda_force * force + cfg.lambda_track * track
-           + cfg.lambda_anchor * held + cfg.lambda_chamfer * sil_far)
+           + cfg.lambda_anchor * held + sil_far)
     grad_pos = pos_leaf.grad.to(positions) if pos_leaf.grad is not None else torch.zeros_like(positions)
     torch.autograd.backward([positions, reg], [grad_pos, torch.ones_like(reg)])
 
     total = (cfg.lambda_image * sums["image"] + cfg.lambda_sil * sums["silhouette"]
              + cfg.lambda_energy * float(energy.detach()) + cfg.lambda_force * float(force.detach())
              + cfg.lambda_track * float(track.detach()) + cfg.lambda_anchor * float(held.detach())
-             + cfg.lambda_chamfer * float(sil_far.detach()))
+             + float(sil_far.detach()))
     if cfg.normalize_loss and total > 0:
         # Dividing the loss by its detached value scales every gradient by 1/L (scale-free steps).
         for t in params.tensors().values():
@@ -411,7 +413,7 @@ def shape_tracks(ctx: PhaseContext, cfg: ShapeConfig, texture: torch.Tensor, tem
 def shape_chamfer(ctx: PhaseContext, cfg: ShapeConfig, device) -> tuple[MaskDistances, torch.Tensor] | None:
     """The chamfer silhouette term's targets (distance maps, contours; on `device`) and the mesh's border
     edges, or None when it is off."""
-    if cfg.lambda_chamfer <= 0:
+    if cfg.lambda_chamfer <= 0 and cfg.lambda_chamfer_cover <= 0:
         return None
     edges = torch.as_tensor(boundary_edges(ctx.triangles.cpu().numpy()), device=device)
     return mask_distances(ctx.target_mask.cpu().numpy(), device=device), edges
