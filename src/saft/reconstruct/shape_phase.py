@@ -35,9 +35,11 @@ from saft.reconstruct.context import PhaseContext
 from saft.reconstruct.force_field import affine_basis, total_accelerations
 from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_loss
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
-from saft.reconstruct.silhouette_chamfer import MaskDistances, boundary_edges, chamfer_loss, mask_distances
+from saft.reconstruct.shape_targets import shape_chamfer, shape_tracks
+from saft.reconstruct.silhouette_chamfer import MaskDistances, chamfer_loss
 from saft.reconstruct.step_guard import StepGuard
-from saft.reconstruct.tracks import VertexTracks, compute_vertex_tracks, hidden_vertices, track_loss
+from saft.reconstruct.tilt_flip import plane_normal, probe_flip
+from saft.reconstruct.tracks import VertexTracks, hidden_vertices, track_loss
 
 # Frames rendered per batch inside an epoch; the physics graph is kept, the render graphs are not. On a
 # GPU a batch of 8 fills the device; on a CPU one frame at a time is cheaper per frame (R1's 700 x 800,
@@ -110,11 +112,12 @@ class ShapeState:
     schedule: dict | None = None   # FrameSchedule.state_dict() after the last epoch
     # the solver's factors from earlier epochs' rollouts (physics/factor_cache.py), checkpointed with the rest
     factors: FactorCache = field(default_factory=FactorCache)
+    flip_probe: str = ""           # the tilt probe's outcome (tilt_flip.py): "" not run, "kept", "mirrored"
 
     def state_dict(self) -> dict:
         saved = {"params": {k: v.detach().cpu() for k, v in self.params.tensors().items()},
                  "optimizer": self.optimizer.state_dict(), "epoch": self.epoch, "guard": self.guard.state_dict(),
-                 "schedule": self.schedule, "factors": self.factors.state_dict()}
+                 "schedule": self.schedule, "factors": self.factors.state_dict(), "flip_probe": self.flip_probe}
         if self.states is not None:
             saved["frame_states"] = {"x": self.states.x.cpu(), "v": self.states.v.cpu(), "frames": self.states.frames,
                                      "fresh": self.states.fresh}
@@ -186,6 +189,7 @@ def restore_shape_state(saved: dict, cfg: ShapeConfig, device) -> ShapeState:
     state.optimizer.load_state_dict(saved["optimizer"])
     state.guard.load_state_dict(saved.get("guard", {}))
     state.factors.load_state_dict(saved.get("factors", {}))
+    state.flip_probe = saved.get("flip_probe", "")
     if "frame_states" in saved:
         fs = saved["frame_states"]
         state.states = FrameStates(fs["x"].to(device), fs["v"].to(device), int(fs["frames"]), int(fs.get("fresh", 1)))
@@ -398,25 +402,29 @@ def lr_factor(epoch: int, first_final: float, cfg: ShapeConfig) -> float:
     return cfg.final_lr_fraction + (1.0 - cfg.final_lr_fraction) * 0.5 * (1.0 + np.cos(np.pi * progress))
 
 
-def shape_tracks(ctx: PhaseContext, cfg: ShapeConfig, texture: torch.Tensor, template: torch.Tensor) -> VertexTracks | None:
-    """Point tracks of `template`'s vertices (on the physics device) through the targets, or None when the
-    track loss is off."""
-    if cfg.lambda_track <= 0 or ctx.target_rgb.shape[0] < 2:
-        return None
+def _clamp(params: ShapeParams, ranges: dict) -> None:
     with torch.no_grad():
-        depth0 = ctx.render(ctx.template_positions[None].to(torch.float32), texture).depth[0]
-    return compute_vertex_tracks(ctx.target_rgb, ctx.target_mask, template, ctx.camera, depth0,
-                                 cfg.track_fb_threshold, cfg.track_reanchor_radius, cfg.track_jump_ratio,
-                                 cfg.track_jump_floor, cfg.track_drift, cfg.track_drift_scale)
+        for name, (lo, hi) in ranges.items():
+            if getattr(params, name) is not None:
+                getattr(params, name).clamp_(lo, hi)
 
 
-def shape_chamfer(ctx: PhaseContext, cfg: ShapeConfig, device) -> tuple[MaskDistances, torch.Tensor] | None:
-    """The chamfer silhouette term's targets (distance maps, contours; on `device`) and the mesh's border
-    edges, or None when it is off."""
-    if cfg.lambda_chamfer <= 0 and cfg.lambda_chamfer_cover <= 0:
-        return None
-    edges = torch.as_tensor(boundary_edges(ctx.triangles.cpu().numpy()), device=device)
-    return mask_distances(ctx.target_mask.cpu().numpy(), device=device), edges
+def _probe_epochs(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, cfg: ShapeConfig, texture, frames: int,
+                  tracks, chamfer, ranges: dict, lr: float) -> float:
+    """shape.flip_probe_epochs full epochs outside the schedule (no backtracking); the last one's loss."""
+    loss = math.inf
+    for _ in range(cfg.flip_probe_epochs):
+        if cfg.center_vertex_accel and state.params.vertex_accel.numel():
+            with torch.no_grad():
+                state.params.vertex_accel -= state.params.vertex_accel.mean(dim=(0, 1), keepdim=True)
+        state.optimizer.zero_grad()
+        loss = epoch_loss_and_grad(ctx, sim, state, cfg, texture, frames, tracks, 0, chamfer)["loss"]
+        state.optimizer.set_lr_factor(lr)
+        state.optimizer.step()
+        _clamp(state.params, ranges)
+        if state.states is not None:
+            state.states.stepped(0)
+    return loss
 
 
 def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, phys: PhysicsConfig,
@@ -442,6 +450,13 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
             with torch.no_grad():
                 for t in _per_frame(params):
                     t[frames - 2] = t[frames - 3]
+        if cfg.flip_probe_frames > 0 and frames >= cfg.flip_probe_frames and not state.flip_probe:
+            mirrored = probe_flip(params.tensors(), state.optimizer, plane_normal(sim.template),
+                                  lambda: _probe_epochs(ctx, sim, state, cfg, texture, frames, tracks, chamfer,
+                                                        ranges, state.guard.lr_scale), cfg.flip_probe_margin)
+            state.flip_probe = "mirrored" if mirrored else "kept"
+            if state.states is not None:
+                state.states.stepped(0)
         start = window_start(frames, state.epoch, sched.final, state.states, cfg)
         if cfg.center_vertex_accel and params.vertex_accel.numel() and start == 0:
             with torch.no_grad():
@@ -457,10 +472,7 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
         restore_outside_window(params, start, frozen)
         if state.states is not None:   # a full pass's step moved every acceleration: refresh before the next window
             state.states.stepped(start)
-        with torch.no_grad():
-            for name, (lo, hi) in ranges.items():
-                if getattr(params, name) is not None:
-                    getattr(params, name).clamp_(lo, hi)
+        _clamp(params, ranges)
         state.epoch += 1
         sched.epoch_done(terms["loss"])
         state.schedule = sched.state_dict()
