@@ -48,11 +48,11 @@ def test_probe_keeps_the_branch_of_lower_loss():
 
         flipped = probe_flip({"const_accel": a}, opt, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64), epochs,
                              margin=0.02)
-        assert flipped == expect
+        assert flipped.startswith("mirrored" if expect else "kept")
         assert (float(a.detach()[2]) < 0) and abs(float(a.detach()[0]) - 0.1) < 0.05   # the kept branch's state, optimised
 
 
 def test_a_reconstruction_with_the_tilt_probe_runs_and_records_it(tiny_reconstruction):
     out = tiny_reconstruction(["shape.flip_probe_frames=4", "shape.flip_probe_epochs=2"])
     saved = torch.load(out / "checkpoint" / "state.pt", weights_only=False)
-    assert saved["shape_state"]["flip_probe"] in ("kept", "mirrored")
+    assert saved["shape_state"]["flip_probe"].split()[0] in ("kept", "mirrored")

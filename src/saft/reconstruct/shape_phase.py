@@ -112,7 +112,7 @@ class ShapeState:
     schedule: dict | None = None   # FrameSchedule.state_dict() after the last epoch
     # the solver's factors from earlier epochs' rollouts (physics/factor_cache.py), checkpointed with the rest
     factors: FactorCache = field(default_factory=FactorCache)
-    flip_probe: str = ""           # the tilt probe's outcome (tilt_flip.py): "" not run, "kept", "mirrored"
+    flip_probe: str = ""           # the tilt probe's outcome (tilt_flip.probe_flip), "" before it ran
 
     def state_dict(self) -> dict:
         saved = {"params": {k: v.detach().cpu() for k, v in self.params.tensors().items()},
@@ -451,10 +451,9 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
                 for t in _per_frame(params):
                     t[frames - 2] = t[frames - 3]
         if cfg.flip_probe_frames > 0 and frames >= cfg.flip_probe_frames and not state.flip_probe:
-            mirrored = probe_flip(params.tensors(), state.optimizer, plane_normal(sim.template),
+            state.flip_probe = probe_flip(params.tensors(), state.optimizer, plane_normal(sim.template),
                                   lambda: _probe_epochs(ctx, sim, state, cfg, texture, frames, tracks, chamfer,
                                                         ranges, state.guard.lr_scale), cfg.flip_probe_margin)
-            state.flip_probe = "mirrored" if mirrored else "kept"
             if state.states is not None:
                 state.states.stepped(0)
         start = window_start(frames, state.epoch, sched.final, state.states, cfg)

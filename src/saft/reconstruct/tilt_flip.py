@@ -68,10 +68,10 @@ def restore(tensors: dict[str, torch.Tensor], optimizer: ClippedAdam, saved: dic
 
 
 def probe_flip(tensors: dict[str, torch.Tensor], optimizer: ClippedAdam, normal: torch.Tensor,
-               run_epochs: Callable[[], float], margin: float) -> bool:
+               run_epochs: Callable[[], float], margin: float) -> str:
     """Optimise the current parameters and their mirror image with `run_epochs` (which returns the last
-    epoch's loss) and keep the better; returns whether the mirror was kept. The parameters and the
-    optimizer are left in the state of the branch kept."""
+    epoch's loss) and keep the better; returns what was kept and the two losses ("kept 0.01 / 0.02",
+    "mirrored 0.02 / 0.01"). The parameters and the optimizer are left in the state of the branch kept."""
     start = snapshot(tensors, optimizer)
     loss_kept = run_epochs()
     kept = snapshot(tensors, optimizer)
@@ -83,7 +83,7 @@ def probe_flip(tensors: dict[str, torch.Tensor], optimizer: ClippedAdam, normal:
              "mirrored" if flipped else "kept")
     if not flipped:
         restore(tensors, optimizer, kept)
-    return flipped
+    return f"{'mirrored' if flipped else 'kept'} {loss_kept:.6g} / {loss_mirror:.6g}"
 
 
 __all__ = ["plane_normal", "mirror", "probe_flip", "snapshot", "restore"]
