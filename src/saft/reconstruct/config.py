@@ -141,12 +141,6 @@ class ShapeConfig:
     # soft-raster silhouette only pulls edge pixels. The log's "chamfer" column is their weighted sum.
     lambda_chamfer: float = 0.0
     lambda_chamfer_cover: float = 0.0
-    # Tilt probe (saft.reconstruct.tilt_flip; 0 = off): when this many frames are first in use, optimise
-    # the current parameters and their mirror image through the template's plane for flip_probe_epochs
-    # full epochs each and keep the branch of lower loss (the mirror only if lower by flip_probe_margin).
-    flip_probe_frames: int = 0
-    flip_probe_epochs: int = 10
-    flip_probe_margin: float = 0.02
     chamfer_huber: float = 3.0
     # Skip a track where the current reconstruction hides its vertex behind another part of the cloth by
     # more than the mean edge length (a fold the flow's forward-backward check let through).

@@ -38,7 +38,6 @@ from saft.reconstruct.optim import ClippedAdam, ParamSpec
 from saft.reconstruct.shape_targets import shape_chamfer, shape_tracks
 from saft.reconstruct.silhouette_chamfer import MaskDistances, chamfer_loss
 from saft.reconstruct.step_guard import StepGuard
-from saft.reconstruct.tilt_flip import plane_normal, probe_flip
 from saft.reconstruct.tracks import VertexTracks, hidden_vertices, track_loss
 
 # Frames rendered per batch inside an epoch; the physics graph is kept, the render graphs are not. On a
@@ -112,12 +111,11 @@ class ShapeState:
     schedule: dict | None = None   # FrameSchedule.state_dict() after the last epoch
     # the solver's factors from earlier epochs' rollouts (physics/factor_cache.py), checkpointed with the rest
     factors: FactorCache = field(default_factory=FactorCache)
-    flip_probe: str = ""           # the tilt probe's outcome (tilt_flip.probe_flip), "" before it ran
 
     def state_dict(self) -> dict:
         saved = {"params": {k: v.detach().cpu() for k, v in self.params.tensors().items()},
                  "optimizer": self.optimizer.state_dict(), "epoch": self.epoch, "guard": self.guard.state_dict(),
-                 "schedule": self.schedule, "factors": self.factors.state_dict(), "flip_probe": self.flip_probe}
+                 "schedule": self.schedule, "factors": self.factors.state_dict()}
         if self.states is not None:
             saved["frame_states"] = {"x": self.states.x.cpu(), "v": self.states.v.cpu(), "frames": self.states.frames,
                                      "fresh": self.states.fresh}
@@ -189,7 +187,6 @@ def restore_shape_state(saved: dict, cfg: ShapeConfig, device) -> ShapeState:
     state.optimizer.load_state_dict(saved["optimizer"])
     state.guard.load_state_dict(saved.get("guard", {}))
     state.factors.load_state_dict(saved.get("factors", {}))
-    state.flip_probe = saved.get("flip_probe", "")
     if "frame_states" in saved:
         fs = saved["frame_states"]
         state.states = FrameStates(fs["x"].to(device), fs["v"].to(device), int(fs["frames"]), int(fs.get("fresh", 1)))
@@ -409,24 +406,6 @@ def _clamp(params: ShapeParams, ranges: dict) -> None:
                 getattr(params, name).clamp_(lo, hi)
 
 
-def _probe_epochs(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, cfg: ShapeConfig, texture, frames: int,
-                  tracks, chamfer, ranges: dict, lr: float) -> float:
-    """shape.flip_probe_epochs full epochs outside the schedule (no backtracking); the last one's loss."""
-    loss = math.inf
-    for _ in range(cfg.flip_probe_epochs):
-        if cfg.center_vertex_accel and state.params.vertex_accel.numel():
-            with torch.no_grad():
-                state.params.vertex_accel -= state.params.vertex_accel.mean(dim=(0, 1), keepdim=True)
-        state.optimizer.zero_grad()
-        loss = epoch_loss_and_grad(ctx, sim, state, cfg, texture, frames, tracks, 0, chamfer)["loss"]
-        state.optimizer.set_lr_factor(lr)
-        state.optimizer.step()
-        _clamp(state.params, ranges)
-        if state.states is not None:
-            state.states.stepped(0)
-    return loss
-
-
 def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, phys: PhysicsConfig,
                     cfg: ShapeConfig, texture: torch.Tensor) -> torch.Tensor:
     """Optimize through the frame schedule (continuing from state.epoch); returns all frames' positions."""
@@ -450,12 +429,6 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
             with torch.no_grad():
                 for t in _per_frame(params):
                     t[frames - 2] = t[frames - 3]
-        if cfg.flip_probe_frames > 0 and frames >= cfg.flip_probe_frames and not state.flip_probe:
-            state.flip_probe = probe_flip(params.tensors(), state.optimizer, plane_normal(sim.template),
-                                  lambda: _probe_epochs(ctx, sim, state, cfg, texture, frames, tracks, chamfer,
-                                                        ranges, state.guard.lr_scale), cfg.flip_probe_margin)
-            if state.states is not None:
-                state.states.stepped(0)
         start = window_start(frames, state.epoch, sched.final, state.states, cfg)
         if cfg.center_vertex_accel and params.vertex_accel.numel() and start == 0:
             with torch.no_grad():
