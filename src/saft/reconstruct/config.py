@@ -135,6 +135,7 @@ class ShapeConfig:
     # Soft confidence instead of that cut (0 = off): each track-frame weighs exp(−(d / track_drift_scale)²)
     # in the track loss, d the chromaticity drift under it so far (saft.reconstruct.tracks.drift_confidence).
     track_drift_scale: float = 0.0
+    track_drift_median_ratio: float = 0.0   # the scale is at least this × the video's median drift (0 = off)
     # Chamfer silhouette terms (saft.reconstruct.silhouette_chamfer; 0 = off): λ of the distance of the
     # projected vertices to the target mask (lambda_chamfer) and of the mask's contour to the projected mesh
     # border (lambda_chamfer_cover), Huber beyond chamfer_huber pixels. Long-range gradients where the

@@ -57,6 +57,7 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "shape.track_jump_floor": (0, 1, True),
     "shape.track_drift": (0, 1, True),
     "shape.track_drift_scale": (0, 1, True),
+    "shape.track_drift_median_ratio": (0, INF, True),
     "shape.lambda_chamfer": (0, INF, True),
     "shape.lambda_chamfer_cover": (0, INF, True),
     "shape.chamfer_huber": (0, INF, False),
