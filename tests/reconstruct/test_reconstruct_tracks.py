@@ -343,3 +343,8 @@ def test_drift_confidence_weighs_down_sliding_tracks_and_the_loss_follows_it():
     none = track_loss(x, VertexTracks(off, valid, 64.0, weight=torch.tensor([[1.0, 0.0]])), cam, 3.0)
     assert float(none) == pytest.approx(0.0, abs=1e-20)
     assert float(half) == pytest.approx(float(full) * 2 * (1 / 3) / (4 / 3))
+
+
+def test_a_reconstruction_with_soft_track_confidence_runs(tiny_reconstruction):
+    out = tiny_reconstruction(["shape.track_drift_scale=0.03", "shape.track_drift_median_ratio=3"])
+    assert (out / "log.csv").is_file()

@@ -136,13 +136,6 @@ class ShapeConfig:
     # in the track loss, d the chromaticity drift under it so far (saft.reconstruct.tracks.drift_confidence).
     track_drift_scale: float = 0.0
     track_drift_median_ratio: float = 0.0   # the scale is at least this × the video's median drift (0 = off)
-    # Chamfer silhouette terms (saft.reconstruct.silhouette_chamfer; 0 = off): λ of the distance of the
-    # projected vertices to the target mask (lambda_chamfer) and of the mask's contour to the projected mesh
-    # border (lambda_chamfer_cover), Huber beyond chamfer_huber pixels. Long-range gradients where the
-    # soft-raster silhouette only pulls edge pixels. The log's "chamfer" column is their weighted sum.
-    lambda_chamfer: float = 0.0
-    lambda_chamfer_cover: float = 0.0
-    chamfer_huber: float = 3.0
     # Skip a track where the current reconstruction hides its vertex behind another part of the cloth by
     # more than the mean edge length (a fold the flow's forward-backward check let through).
     track_occlusion: bool = True

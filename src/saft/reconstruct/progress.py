@@ -12,7 +12,7 @@ from saft.io_utils import atomic_write_text
 
 log = logging.getLogger("saft")
 
-LOG_FIELDS = ["phase", "epoch", "frames", "loss", "image", "silhouette", "energy", "force", "track", "held", "chamfer", "smooth",
+LOG_FIELDS = ["phase", "epoch", "frames", "loss", "image", "silhouette", "energy", "force", "track", "held", "smooth",
               "env_l1", "env_smooth", "lr_factor", "backtracks", "seconds"]
 
 

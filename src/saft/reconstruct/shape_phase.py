@@ -35,10 +35,8 @@ from saft.reconstruct.context import PhaseContext
 from saft.reconstruct.force_field import affine_basis, total_accelerations
 from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_loss
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
-from saft.reconstruct.shape_targets import shape_chamfer, shape_tracks
-from saft.reconstruct.silhouette_chamfer import MaskDistances, chamfer_loss
 from saft.reconstruct.step_guard import StepGuard
-from saft.reconstruct.tracks import VertexTracks, hidden_vertices, track_loss
+from saft.reconstruct.tracks import VertexTracks, compute_vertex_tracks, hidden_vertices, track_loss
 
 # Frames rendered per batch inside an epoch; the physics graph is kept, the render graphs are not. On a
 # GPU a batch of 8 fills the device; on a CPU one frame at a time is cheaper per frame (R1's 700 x 800,
@@ -316,8 +314,7 @@ def along_ray_weight(cfg: ShapeConfig, sim: ShapeSimulator) -> float:
 
 def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, cfg: ShapeConfig,
                         texture: torch.Tensor, frames: int, tracks: VertexTracks | None = None,
-                        start: int = 0,
-                        chamfer: tuple[MaskDistances, torch.Tensor] | None = None) -> dict[str, float]:
+                        start: int = 0) -> dict[str, float]:
     """Forward + backward of one epoch over frames start..frames-1 (start > 0: a window from a stored,
     detached state); leaves the gradients in the parameters. Returns the loss terms."""
     params = state.params
@@ -366,29 +363,21 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
         track = track_loss(positions, tracks, ctx.camera, cfg.track_huber, first_frame=start, hidden=hidden)
     else:
         track = torch.zeros((), dtype=positions.dtype, device=positions.device)
-    if chamfer is not None:
-        outside, cover = chamfer_loss(positions, chamfer[0], chamfer[1], ctx.camera, cfg.chamfer_huber,
-                                      first_frame=start, cover=cfg.lambda_chamfer_cover > 0)
-        sil_far = cfg.lambda_chamfer * outside + cfg.lambda_chamfer_cover * cover
-    else:
-        sil_far = torch.zeros((), dtype=positions.dtype, device=positions.device)
     held = sim.held_share(params, cfg.anchor_log10_range[0])
-    reg = (cfg.lambda_energy * energy + cfg.lambda_force * force + cfg.lambda_track * track
-           + cfg.lambda_anchor * held + sil_far)
+    reg = cfg.lambda_energy * energy + cfg.lambda_force * force + cfg.lambda_track * track + cfg.lambda_anchor * held
     grad_pos = pos_leaf.grad.to(positions) if pos_leaf.grad is not None else torch.zeros_like(positions)
     torch.autograd.backward([positions, reg], [grad_pos, torch.ones_like(reg)])
 
     total = (cfg.lambda_image * sums["image"] + cfg.lambda_sil * sums["silhouette"]
              + cfg.lambda_energy * float(energy.detach()) + cfg.lambda_force * float(force.detach())
-             + cfg.lambda_track * float(track.detach()) + cfg.lambda_anchor * float(held.detach())
-             + float(sil_far.detach()))
+             + cfg.lambda_track * float(track.detach()) + cfg.lambda_anchor * float(held.detach()))
     if cfg.normalize_loss and total > 0:
         # Dividing the loss by its detached value scales every gradient by 1/L (scale-free steps).
         for t in params.tensors().values():
             if t.grad is not None:
                 t.grad.div_(total)
     return {"loss": total, "energy": float(energy.detach()), "force": float(force.detach()),
-            "track": float(track.detach()), "held": float(held.detach()), "chamfer": float(sil_far.detach()), **sums}
+            "track": float(track.detach()), "held": float(held.detach()), **sums}
 
 
 def lr_factor(epoch: int, first_final: float, cfg: ShapeConfig) -> float:
@@ -399,11 +388,17 @@ def lr_factor(epoch: int, first_final: float, cfg: ShapeConfig) -> float:
     return cfg.final_lr_fraction + (1.0 - cfg.final_lr_fraction) * 0.5 * (1.0 + np.cos(np.pi * progress))
 
 
-def _clamp(params: ShapeParams, ranges: dict) -> None:
+def shape_tracks(ctx: PhaseContext, cfg: ShapeConfig, texture: torch.Tensor, template: torch.Tensor) -> VertexTracks | None:
+    """Point tracks of `template`'s vertices (on the physics device) through the targets, or None when the
+    track loss is off."""
+    if cfg.lambda_track <= 0 or ctx.target_rgb.shape[0] < 2:
+        return None
     with torch.no_grad():
-        for name, (lo, hi) in ranges.items():
-            if getattr(params, name) is not None:
-                getattr(params, name).clamp_(lo, hi)
+        depth0 = ctx.render(ctx.template_positions[None].to(torch.float32), texture).depth[0]
+    return compute_vertex_tracks(ctx.target_rgb, ctx.target_mask, template, ctx.camera, depth0,
+                                 cfg.track_fb_threshold, cfg.track_reanchor_radius, cfg.track_jump_ratio,
+                                 cfg.track_jump_floor, cfg.track_drift, cfg.track_drift_scale,
+                                 cfg.track_drift_median_ratio)
 
 
 def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, phys: PhysicsConfig,
@@ -414,7 +409,6 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
     ranges = {"log10_Y": phys.log10_Y_range, "log10_B": phys.log10_B_range, "log10_S": phys.log10_S_range,
               "anchor_log10": cfg.anchor_log10_range}
     tracks = shape_tracks(ctx, cfg, texture, sim.template)
-    chamfer = shape_chamfer(ctx, cfg, sim.template.device)
     if cfg.window > 0 and state.states is None:
         zeros = sim.template.new_zeros((n_frames,) + tuple(sim.template.shape))
         state.states = FrameStates(zeros.clone(), zeros.clone(), 1)
@@ -434,7 +428,7 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
             with torch.no_grad():
                 params.vertex_accel -= params.vertex_accel.mean(dim=(0, 1), keepdim=True)
         state.optimizer.zero_grad()
-        terms = epoch_loss_and_grad(ctx, sim, state, cfg, texture, frames, tracks, start, chamfer)
+        terms = epoch_loss_and_grad(ctx, sim, state, cfg, texture, frames, tracks, start)
         if start == 0:   # a window's loss covers other frames: not comparable
             state.guard.check(frames, terms["loss"], params.tensors(), state.optimizer)
         lr = lr_factor(state.epoch, sched.first_final_epoch(state.epoch), cfg) * state.guard.lr_scale
@@ -444,7 +438,10 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
         restore_outside_window(params, start, frozen)
         if state.states is not None:   # a full pass's step moved every acceleration: refresh before the next window
             state.states.stepped(start)
-        _clamp(params, ranges)
+        with torch.no_grad():
+            for name, (lo, hi) in ranges.items():
+                if getattr(params, name) is not None:
+                    getattr(params, name).clamp_(lo, hi)
         state.epoch += 1
         sched.epoch_done(terms["loss"])
         state.schedule = sched.state_dict()
