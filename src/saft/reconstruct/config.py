@@ -135,7 +135,6 @@ class ShapeConfig:
     # Soft confidence instead of that cut (0 = off): each track-frame weighs exp(−(d / track_drift_scale)²)
     # in the track loss, d the chromaticity drift under it so far (saft.reconstruct.tracks.drift_confidence).
     track_drift_scale: float = 0.0
-    track_drift_median_ratio: float = 0.0   # the scale is at least this × the video's median drift (0 = off)
     # Skip a track where the current reconstruction hides its vertex behind another part of the cloth by
     # more than the mean edge length (a fold the flow's forward-backward check let through).
     track_occlusion: bool = True

@@ -174,18 +174,11 @@ def end_at_colour_drift(rgb: np.ndarray, points: np.ndarray, valid: np.ndarray, 
     return valid & ~(colour_drift(rgb, points) > drift)
 
 
-def drift_confidence(rgb: np.ndarray, points: np.ndarray, valid: np.ndarray, scale: float,
-                     median_ratio: float = 0.0) -> np.ndarray | None:
-    """(N, P) weight exp(−(d / s)²) of each track-frame, d its colour_drift so far, s = max(scale,
-    median_ratio × the median d over the valid track-frames after frame 0): a video whose colours drift
-    under every track (a real camera) weighs its tracks by its own level. None for scale 0."""
+def drift_confidence(rgb: np.ndarray, points: np.ndarray, scale: float) -> np.ndarray | None:
+    """(N, P) weight exp(−(d / scale)²) of each track-frame, d its colour_drift so far; None for scale 0."""
     if scale <= 0:
         return None
-    drift = colour_drift(rgb, points)
-    moving = valid[1:]
-    if median_ratio > 0 and moving.any():
-        scale = max(scale, median_ratio * float(np.median(drift[1:][moving])))
-    return np.exp(-(drift / scale) ** 2)
+    return np.exp(-(colour_drift(rgb, points) / scale) ** 2)
 
 
 def project(points: torch.Tensor, camera: Camera) -> tuple[torch.Tensor, torch.Tensor]:
@@ -219,7 +212,7 @@ def visible_vertices(template: torch.Tensor, camera: Camera, mask0: np.ndarray, 
 def compute_vertex_tracks(rgb: torch.Tensor, mask: torch.Tensor, template: torch.Tensor, camera: Camera,
                           depth0: torch.Tensor, fb_threshold: float, reanchor_radius: float = 0.0,
                           jump_ratio: float = 0.0, jump_floor: float = 0.03, drift: float = 0.0,
-                          drift_scale: float = 0.0, drift_median_ratio: float = 0.0) -> VertexTracks:
+                          drift_scale: float = 0.0) -> VertexTracks:
     """Tracks of every template vertex through the target video (rgb (N, H, W, 3), mask (N, H, W)); with
     jump_ratio > 0 a track also ends at its first colour jump (end_at_appearance_jumps), with drift > 0 where
     its chromaticity drifts from frame 0's (end_at_colour_drift); with drift_scale > 0 each track-frame is
@@ -230,7 +223,7 @@ def compute_vertex_tracks(rgb: torch.Tensor, mask: torch.Tensor, template: torch
     pts, valid = track_points(rgb_np, mask_np, start, ok, fb_threshold, reanchor_radius)
     valid = end_at_appearance_jumps(rgb_np, pts, valid, jump_ratio, jump_floor)
     valid = end_at_colour_drift(rgb_np, pts, valid, drift)
-    weight = drift_confidence(rgb_np, pts, valid, drift_scale, drift_median_ratio)
+    weight = drift_confidence(rgb_np, pts, drift_scale)
     return VertexTracks(points=torch.as_tensor(pts, dtype=template.dtype, device=template.device),
                         valid=torch.as_tensor(valid, device=template.device),
                         scale=float(max(camera.width, camera.height)),
