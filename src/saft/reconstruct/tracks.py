@@ -30,7 +30,9 @@ chromaticity (rgb / (r + g + b), under a white light), so a track also ends at t
 chromaticity under it (5 × 5 box-filtered) differs from its frame-0 chromaticity by more than `drift` in
 some channel. On the independent-simulator scenes the track-frames that pass 0.02 are 0.1-0.3 px off
 (median), those beyond it 3-8 px (BENCHMARKS.md, "Why saft loses the independent scenes"). A print
-without colour never triggers it.
+without colour never triggers it. Instead of that cut, shape.track_drift_scale weighs each track-frame by
+exp(−(d / scale)²), d the largest drift so far (drift_confidence; off by default: it helps the
+independent-simulator scenes and costs R1, BENCHMARKS.md).
 
     L_track = mean over valid (frame, vertex) of huber(|π(x_v,t) − p_v,t| / s)
 
