@@ -8,7 +8,7 @@ from saft.reconstruct.config import ShapeConfig
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
 from saft.reconstruct.shape_phase import lr_factor
 from saft.reconstruct.tracks import (VertexTracks, appearance_steps, bilinear_sample, end_at_appearance_jumps,
-                                     end_at_colour_drift, project,
+                                     drift_confidence, end_at_colour_drift, project,
                                      track_loss, track_points)
 from saft.scene.camera import look_at
 from saft.synthetic import procedural_texture
@@ -313,3 +313,31 @@ def test_a_track_ends_where_its_colour_drifts_slowly_but_not_where_its_shading_c
     ended = ~kept[-1]
     assert not kept[np.argmax(~kept, axis=0)[ended].max():, ended].any()   # ended for good
     assert (end_at_colour_drift(frames, points, valid, 0.0) == valid).all()  # 0 = off
+
+
+def test_drift_confidence_weighs_down_sliding_tracks_and_the_loss_follows_it():
+    rng = np.random.default_rng(2)
+    tex = _smooth_texture(96)
+    frames = np.stack([tex * (1.0 - 0.06 * t) for t in range(8)])
+    points = np.repeat(rng.uniform(20, 76, (40, 2))[None], 8, axis=0)
+    points[:, :10] += np.arange(8.0)[:, None, None] * np.array([2.0, 0.0])
+    w = drift_confidence(frames, points, 0.03)
+    assert np.allclose(w[0], 1.0) and w[:, 10:].min() > 0.9         # shading only: full weight
+    assert w[-1, :10].max() < 0.5 and (np.diff(w, axis=0) <= 0).all()  # slid: weighed down, never back up
+    assert drift_confidence(frames, points, 0.0) is None
+    # the track loss is the weighted mean: a track of weight 0 does not count
+    cam = _camera()
+    x = torch.zeros(1, 2, 3, dtype=torch.float64)
+    uv, _ = project(x, cam)
+    off = uv + torch.tensor([[0.0, 0.0], [2.0, 0.0]], dtype=torch.float64)
+    valid = torch.ones(1, 2, dtype=torch.bool)
+    full = track_loss(x, VertexTracks(off, valid, 64.0), cam, huber_delta=3.0)
+    half = track_loss(x, VertexTracks(off, valid, 64.0, weight=torch.tensor([[1.0, 1.0 / 3.0]])), cam, 3.0)
+    none = track_loss(x, VertexTracks(off, valid, 64.0, weight=torch.tensor([[1.0, 0.0]])), cam, 3.0)
+    assert float(none) == pytest.approx(0.0, abs=1e-20)
+    assert float(half) == pytest.approx(float(full) * 2 * (1 / 3) / (4 / 3))
+
+
+def test_a_reconstruction_with_soft_track_confidence_runs(tiny_reconstruction):
+    out = tiny_reconstruction(["shape.track_drift_scale=0.03"])
+    assert (out / "log.csv").is_file()

@@ -132,6 +132,13 @@ class ShapeConfig:
     # loses the independent scenes"); at 627f785, R1 perturbation 1 with 0.03: 0.479 (last 1.09),
     # the default 0.425 (0.65). Kept off until repeats on both decide.
     track_drift: float = 0.0
+    # Soft confidence instead of that cut (0 = off): each track-frame weighs exp(−(d / track_drift_scale)²)
+    # in the track loss, d the chromaticity drift under it so far (saft.reconstruct.tracks.drift_confidence).
+    # Off by default: 0.03 made all six independent-simulator scenes better or level (flag 19.1 -> 14.3,
+    # side gust 23.1 -> 20.4, gust 1.20 -> 1.06, fold 1.16 -> 0.92, corners 1.33 -> 1.21, one corner 24.3;
+    # median 10.2 -> 7.8; one run each, the flag and one corner repeated under perturbation), but R1 lost at
+    # perturbations 1 and 3: 0.425 -> 0.461, 0.435 -> 0.459 (BENCHMARKS.md, "Soft track confidence, …").
+    track_drift_scale: float = 0.0
     # Skip a track where the current reconstruction hides its vertex behind another part of the cloth by
     # more than the mean edge length (a fold the flow's forward-backward check let through).
     track_occlusion: bool = True

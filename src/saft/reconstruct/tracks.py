@@ -30,7 +30,9 @@ chromaticity (rgb / (r + g + b), under a white light), so a track also ends at t
 chromaticity under it (5 × 5 box-filtered) differs from its frame-0 chromaticity by more than `drift` in
 some channel. On the independent-simulator scenes the track-frames that pass 0.02 are 0.1-0.3 px off
 (median), those beyond it 3-8 px (BENCHMARKS.md, "Why saft loses the independent scenes"). A print
-without colour never triggers it.
+without colour never triggers it. Instead of that cut, shape.track_drift_scale weighs each track-frame by
+exp(−(d / scale)²), d the largest drift so far (drift_confidence; off by default: it helps the
+independent-simulator scenes and costs R1, BENCHMARKS.md).
 
     L_track = mean over valid (frame, vertex) of huber(|π(x_v,t) − p_v,t| / s)
 
@@ -54,6 +56,7 @@ class VertexTracks:
     points: torch.Tensor    # (N, V, 2) pixel coordinates (u = column, v = row) in the working image
     valid: torch.Tensor     # (N, V) bool: the track is trusted in that frame
     scale: float            # pixels per unit of the loss (the image's larger side)
+    weight: torch.Tensor | None = None   # (N, V) confidence of each track-frame in the loss (None = all 1)
 
     def coverage(self) -> np.ndarray:
         """(N,) fraction of the vertices with a valid track in each frame."""
@@ -157,15 +160,27 @@ def end_at_appearance_jumps(rgb: np.ndarray, points: np.ndarray, valid: np.ndarr
     return valid & ~np.maximum.accumulate(jumped, axis=0)
 
 
-def end_at_colour_drift(rgb: np.ndarray, points: np.ndarray, valid: np.ndarray, drift: float) -> np.ndarray:
-    """`valid` with every track ended from its first frame whose chromaticity (5 × 5 box-filtered rgb
-    divided by r + g + b) differs from its frame-0 one by more than `drift` in some channel; 0 changes nothing."""
-    if drift <= 0 or points.shape[0] < 2:
-        return valid
+def colour_drift(rgb: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(N, P) the largest drift so far of the chromaticity (5 × 5 box-filtered rgb divided by r + g + b)
+    under each track from its frame-0 one (largest channel), running maximum over the frames."""
     colours = track_colours(rgb, points, box=5)
     chroma = colours / np.clip(colours.sum(axis=-1, keepdims=True), 1e-3, None)
-    drifted = np.abs(chroma - chroma[:1]).max(axis=-1) > drift
-    return valid & ~np.maximum.accumulate(drifted, axis=0)
+    return np.maximum.accumulate(np.abs(chroma - chroma[:1]).max(axis=-1), axis=0)
+
+
+def end_at_colour_drift(rgb: np.ndarray, points: np.ndarray, valid: np.ndarray, drift: float) -> np.ndarray:
+    """`valid` with every track ended from its first frame whose chromaticity differs from its frame-0 one
+    by more than `drift` in some channel (colour_drift); 0 changes nothing."""
+    if drift <= 0 or points.shape[0] < 2:
+        return valid
+    return valid & ~(colour_drift(rgb, points) > drift)
+
+
+def drift_confidence(rgb: np.ndarray, points: np.ndarray, scale: float) -> np.ndarray | None:
+    """(N, P) weight exp(−(d / scale)²) of each track-frame, d its colour_drift so far; None for scale 0."""
+    if scale <= 0:
+        return None
+    return np.exp(-(colour_drift(rgb, points) / scale) ** 2)
 
 
 def project(points: torch.Tensor, camera: Camera) -> tuple[torch.Tensor, torch.Tensor]:
@@ -198,19 +213,24 @@ def visible_vertices(template: torch.Tensor, camera: Camera, mask0: np.ndarray, 
 
 def compute_vertex_tracks(rgb: torch.Tensor, mask: torch.Tensor, template: torch.Tensor, camera: Camera,
                           depth0: torch.Tensor, fb_threshold: float, reanchor_radius: float = 0.0,
-                          jump_ratio: float = 0.0, jump_floor: float = 0.03, drift: float = 0.0) -> VertexTracks:
+                          jump_ratio: float = 0.0, jump_floor: float = 0.03, drift: float = 0.0,
+                          drift_scale: float = 0.0) -> VertexTracks:
     """Tracks of every template vertex through the target video (rgb (N, H, W, 3), mask (N, H, W)); with
     jump_ratio > 0 a track also ends at its first colour jump (end_at_appearance_jumps), with drift > 0 where
-    its chromaticity drifts from frame 0's (end_at_colour_drift)."""
+    its chromaticity drifts from frame 0's (end_at_colour_drift); with drift_scale > 0 each track-frame is
+    weighted by drift_confidence."""
     rgb_np = rgb.detach().cpu().numpy()
     mask_np = mask.detach().cpu().numpy()
     start, ok = visible_vertices(template, camera, mask_np[0], depth0.detach().cpu().numpy())
     pts, valid = track_points(rgb_np, mask_np, start, ok, fb_threshold, reanchor_radius)
     valid = end_at_appearance_jumps(rgb_np, pts, valid, jump_ratio, jump_floor)
     valid = end_at_colour_drift(rgb_np, pts, valid, drift)
+    weight = drift_confidence(rgb_np, pts, drift_scale)
     return VertexTracks(points=torch.as_tensor(pts, dtype=template.dtype, device=template.device),
                         valid=torch.as_tensor(valid, device=template.device),
-                        scale=float(max(camera.width, camera.height)))
+                        scale=float(max(camera.width, camera.height)),
+                        weight=None if weight is None else torch.as_tensor(weight, dtype=template.dtype,
+                                                                           device=template.device))
 
 
 def hidden_vertices(positions: torch.Tensor, depth: torch.Tensor, camera: Camera, tolerance: float) -> torch.Tensor:
@@ -229,7 +249,7 @@ def hidden_vertices(positions: torch.Tensor, depth: torch.Tensor, camera: Camera
 def track_loss(positions: torch.Tensor, tracks: VertexTracks, camera: Camera, huber_delta: float,
                first_frame: int = 0, hidden: torch.Tensor | None = None) -> torch.Tensor:
     """L_track of simulated frames first_frame..first_frame+F-1 (positions (F, V, 3)); zero when no track
-    is valid there.
+    is valid there; with tracks.weight, the weighted mean over the valid track-frames.
 
     huber_delta in pixels: residuals beyond it count linearly (a track that went astray pulls less).
     hidden (F, V) bool: vertices the reconstruction itself hides (hidden_vertices); their tracks are
@@ -244,7 +264,10 @@ def track_loss(positions: torch.Tensor, tracks: VertexTracks, camera: Camera, hu
     r = (uv - tracks.points[frames].to(uv)).norm(dim=-1) / tracks.scale
     d = huber_delta / tracks.scale
     h = torch.where(r <= d, 0.5 * r * r, d * (r - 0.5 * d))
-    return h[valid].mean()
+    if tracks.weight is None:
+        return h[valid].mean()
+    w = tracks.weight[frames].to(h)[valid]
+    return (h[valid] * w).sum() / w.sum().clamp_min(1e-12)
 
 
 __all__ = ["VertexTracks", "compute_vertex_tracks", "end_at_colour_drift", "track_loss", "hidden_vertices", "track_points", "project", "visible_vertices",
