@@ -18,6 +18,8 @@ def test_split_holds_out_every_kth_frame_and_never_fits_it():
     fit, held = split_frames(32, 4)
     assert list(held) == [2, 6, 10, 14, 18, 22, 26, 30]
     assert len(fit) == 24 and not set(fit) & set(held)
+    fit, held = split_frames(32, 4, "last")
+    assert list(held) == list(range(24, 32)) and list(fit) == list(range(24))
     fit, held = split_frames(5, 4)            # too short to spare frames: scored in-sample
     assert list(fit) == list(held) == [0, 1, 2, 3, 4]
 

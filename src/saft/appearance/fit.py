@@ -155,7 +155,7 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
     kw = dict(device=device, progress=progress, checkpoint=checkpoint, init_texture=init_texture)
     if cfg.matte_start_roughness <= 0 or cfg.maps != "guided" or resume_state is not None:
         return _fit_single(*args, config=cfg, resume_state=resume_state, **kw)
-    fit_frames, held = split_frames(len(vertices_per_frame), cfg.holdout_every)
+    fit_frames, held = split_frames(len(vertices_per_frame), cfg.holdout_every, cfg.holdout)
     first = _fit_single(*args, config=cfg, fit_frames=fit_frames, held_out=held, **kw)
     matte_cfg = copy.deepcopy(cfg)
     matte_cfg.init_roughness = cfg.matte_start_roughness

@@ -28,14 +28,15 @@ HELD_OUT_SPP = 16          # per render; two renders per frame (product of resid
 HELD_OUT_SEEDS = (104729, 130363)  # shared by both fits, distinct from the fit's and the evidence test's seeds
 
 
-def split_frames(n_frames: int, every: int) -> tuple[np.ndarray, np.ndarray]:
-    """(fit frames, held-out frames): every `every`-th frame, from the middle of the first group, is held out
-    (32 frames, every 4: 2, 6, …, 30). Too few frames to spare (< 2·every): nothing is held out and the
-    frames are scored in-sample."""
+def split_frames(n_frames: int, every: int, mode: str = "interleaved") -> tuple[np.ndarray, np.ndarray]:
+    """(fit frames, held-out frames), n_frames // every held out: "interleaved", every `every`-th frame from
+    the middle of the first group (32 frames, every 4: 2, 6, …, 30); "last", the last ones (24, …, 31: poses
+    further from any fitted one). Too few frames to spare (< 2·every): nothing is held out and the frames
+    are scored in-sample."""
     frames = np.arange(n_frames)
     if every < 2 or n_frames < 2 * every:
         return frames, frames
-    held = frames[every // 2::every]
+    held = frames[every // 2::every] if mode == "interleaved" else frames[n_frames - n_frames // every:]
     return np.setdiff1d(frames, held), held
 
 
