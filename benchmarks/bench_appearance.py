@@ -137,7 +137,7 @@ def main(argv=None) -> int:
                                  init_texture=texture)
             rows.append({"fabric": fabric, **row("phase 3, true motion", (res.diffuse, res.roughness, res.metallic),
                                                  gt, scene, verts, args.eval_spp, (res.seconds, res.cpu_seconds)),
-                         "materials": res.materials, "start_choice": res.start_choice})
+                         "materials": res.materials})
             if args.save_maps:
                 save_comparison(Path(args.save_maps) / f"{name}.png", res, gt, texture)
         if args.own_motion:
@@ -146,7 +146,7 @@ def main(argv=None) -> int:
                                  cfg, init_texture=own_texture)
             rows.append({"fabric": fabric, **row("phase 3, saft motion", (own.diffuse, own.roughness, own.metallic),
                                                  gt, scene, verts, args.eval_spp, (own.seconds, own.cpu_seconds)),
-                         "shape_cd2": cd2, "materials": own.materials, "start_choice": own.start_choice})
+                         "shape_cd2": cd2, "materials": own.materials})
         for r in rows[-3:]:
             if r["fabric"] == fabric:
                 print(json.dumps(r), flush=True)

@@ -31,14 +31,6 @@ class AppearanceConfig:
     # matte is set to matte and reported undetermined (appearance.evidence); 0 = no test
     evidence_threshold: float = 0.0
     evidence_spp: int = 4
-    # maps="guided": > 0 fits twice, from init_roughness and from this (matte) roughness, each on the frames
-    # left after holding out every holdout_every-th, and keeps the one with the lower noise-free loss on the
-    # held-out frames; where the two differ by less than determined_z paired standard errors across those
-    # frames, appearance.json says that the roughness is not determined (appearance.two_starts); 0 = one fit
-    matte_start_roughness: float = 0.0
-    holdout_every: int = 4               # 32 frames → 8 held out (2, 6, …, 30), 24 fitted
-    holdout: Literal["interleaved", "last"] = "interleaved"   # which frames: every k-th, or the last 1/k
-    determined_z: float = 2.0            # ≈ 95 % two-sided: a statistical convention, not set on any fabric
     tile_size: int = 128                 # decoder tile side (4·2^k)
     num_tiles: int = 16                  # tiles on a square grid (16 → 4×4)
     tile_overlap: int = 10               # → maps of 4·(128−10) = 472 px
@@ -83,10 +75,6 @@ class AppearanceConfig:
         def bad(key, why):
             raise SaftInputError(f"appearance.{key}", why)
 
-        if not (0 <= self.matte_start_roughness <= 1) or self.holdout_every < 0 or self.determined_z < 0:
-            bad("matte_start_roughness", "must lie in [0, 1], holdout_every and determined_z must be >= 0")
-        if self.holdout not in ("interleaved", "last"):
-            bad("holdout", "must be 'interleaved' or 'last'")
         if self.epochs < 1:
             bad("epochs", "must be >= 1")
         if not (0 < self.lr_final_factor <= 1):

@@ -20,7 +20,6 @@ from saft.appearance.mitsuba_backend import load_mitsuba
 from saft.appearance.params import (EnvironmentMap, PyramidEnvironmentMap, TexelMaps, TextureDecoder, colour_weight,
                                     env_amplitude, env_smoothness, linear_to_srgb, srgb_to_linear)
 from saft.appearance.renderer import ClothRenderer
-from saft.appearance.two_starts import pair_losses, pick, product_loss, split_frames, undetermined_roughness_note
 from saft.errors import SaftInputError
 from saft.io_utils import atomic_path, atomic_write_json, read_image, resize_images, write_image
 from saft.scene.camera import Camera
@@ -47,11 +46,6 @@ class AppearanceResult:
     # maps="guided": per material cluster, its area, roughness, metallic and whether the video determined
     # it (appearance.evidence); None for the other parametrisations
     materials: list[dict] | None = None
-    # matte_start_roughness > 0: per held-out frame, the noise-free loss of the final maps, the same on 8
-    # fitted frames (appearance.two_starts), and which of the two starts was kept (with both losses)
-    held_out_loss: list[float] | None = None
-    fitted_loss: list[float] | None = None
-    start_choice: dict | None = None
 
 
 def _build_model(cfg: AppearanceConfig, init_texture) -> torch.nn.Module:
@@ -146,38 +140,7 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
     progress may raise (e.g. on Ctrl-C) to stop the fit: checkpoint(state) is called with the state after
     that epoch before the exception goes on, so an interruption loses no finished epoch.
     init_texture: the phase-1 texture (St, St, 3) sRGB, which maps="guided" starts from (required there).
-    config.matte_start_roughness > 0 (maps="guided"): two fits, from init_roughness and from that roughness,
-    each on the frames left after holding out every config.holdout_every-th, one kept by its loss on the
-    held-out frames (appearance.two_starts; progress runs through the epochs twice; a resumed fit is one fit).
     """
-    cfg = copy.deepcopy(config) if config is not None else AppearanceConfig()
-    args = (vertices_per_frame, triangles, uvs, camera, target_rgb, target_mask)
-    kw = dict(device=device, progress=progress, checkpoint=checkpoint, init_texture=init_texture)
-    if cfg.matte_start_roughness <= 0 or cfg.maps != "guided" or resume_state is not None:
-        return _fit_single(*args, config=cfg, resume_state=resume_state, **kw)
-    fit_frames, held = split_frames(len(vertices_per_frame), cfg.holdout_every, cfg.holdout)
-    first = _fit_single(*args, config=cfg, fit_frames=fit_frames, held_out=held, **kw)
-    matte_cfg = copy.deepcopy(cfg)
-    matte_cfg.init_roughness = cfg.matte_start_roughness
-    second = _fit_single(*args, config=matte_cfg, fit_frames=fit_frames, held_out=held, **kw)
-    kept, record = pick(first, second, cfg.determined_z)
-    record["held_out_frames"] = [int(f) for f in held]
-    kept.start_choice = record
-    kept.config = cfg            # the run's config (init_roughness of the kept start is in start_choice)
-    kept.seconds, kept.cpu_seconds = first.seconds + second.seconds, first.cpu_seconds + second.cpu_seconds
-    if checkpoint is not None:   # the last checkpoint is the kept fit's
-        checkpoint(kept.state)
-    return kept
-
-
-def _fit_single(vertices_per_frame, triangles, uvs, camera: Camera, target_rgb, target_mask,
-                config: AppearanceConfig | None = None, device="cpu",
-                progress: Callable[[int, int, float], None] | None = None,
-                resume_state: dict | None = None,
-                checkpoint: Callable[[dict], None] | None = None, init_texture=None,
-                fit_frames=None, held_out=None) -> AppearanceResult:
-    """One fit of fit_appearance (one start) on fit_frames (None: all); held_out: the frames to score
-    the final maps on by the noise-free loss (None: no score)."""
     cfg = copy.deepcopy(config) if config is not None else AppearanceConfig()
     cfg.validate()
     verts = np.asarray(vertices_per_frame, dtype=np.float64)
@@ -231,8 +194,7 @@ def _fit_single(vertices_per_frame, triangles, uvs, camera: Camera, target_rgb, 
                 "losses": list(losses), "config": cfg.to_dict()}
 
     t0, c0 = time.perf_counter(), time.process_time()
-    pool = np.arange(n_frames) if fit_frames is None else np.asarray(fit_frames)
-    batch = cfg.frames_per_epoch if 0 < cfg.frames_per_epoch < len(pool) else len(pool)
+    batch = cfg.frames_per_epoch if 0 < cfg.frames_per_epoch < n_frames else n_frames
     base_lrs = [cfg.lr_decoder if cfg.maps == "decoder" else cfg.lr_texels, cfg.lr_env]  # (resume: not the decayed)
     for epoch in range(start_epoch, cfg.epochs):
         w = colour_weight(epoch, cfg.epochs, cfg.grey_fraction, cfg.blend_fraction)
@@ -240,10 +202,10 @@ def _fit_single(vertices_per_frame, triangles, uvs, camera: Camera, target_rgb, 
         for opt, lr in zip((opt_maps, opt_env), base_lrs):
             for g in opt.param_groups:
                 g["lr"] = lr * decay
-        if batch < len(pool):
-            frames = np.sort(np.random.default_rng(cfg.seed * 100_003 + epoch).choice(pool, batch, replace=False))
+        if batch < n_frames:
+            frames = np.sort(np.random.default_rng(cfg.seed * 100_003 + epoch).choice(n_frames, batch, replace=False))
         else:
-            frames = pool
+            frames = np.arange(n_frames)
         maps = model()
         env_eff = env(w)
         leaves = {k: v.detach().requires_grad_(True) for k, v in maps.items()}
@@ -291,7 +253,7 @@ def _fit_single(vertices_per_frame, triangles, uvs, camera: Camera, target_rgb, 
 
     evidence = None
     if isinstance(model, GuidedMaps) and cfg.evidence_threshold > 0:
-        test_frames = [int(pool[i]) for i in np.linspace(0, len(pool) - 1, min(len(pool), 8)).round().astype(int)]
+        test_frames = [int(f) for f in np.linspace(0, n_frames - 1, min(n_frames, 8)).round()]
         env_now = env(colour_weight(cfg.epochs - 1, cfg.epochs, cfg.grey_fraction, cfg.blend_fraction)).detach()
 
         def render_frame(f, d, r, m, e, spp, seed):
@@ -301,21 +263,6 @@ def _fit_single(vertices_per_frame, triangles, uvs, camera: Camera, target_rgb, 
         evidence = cluster_evidence(model, env_now, render_frame, test_frames,
                                     lambda f, img: masked_linearised_srgb_mse(img, lin_t[f], slope_t[f], mask_t[f]),
                                     spp=cfg.evidence_spp, threshold=cfg.evidence_threshold)
-    scores = None
-    if held_out is not None:
-        with torch.no_grad():
-            now = model()
-            env_now = env(colour_weight(cfg.epochs - 1, cfg.epochs, cfg.grey_fraction, cfg.blend_fraction))
-
-        def render_final(f, spp, seed):
-            renderer.set_vertices(verts[f])
-            return renderer.render(now["diffuse"], now["roughness"], now["metallic"], env_now, spp=spp, seed=seed)
-
-        def pair(f, a, b):
-            return product_loss(a, b, lin_t[f], slope_t[f], mask_t[f])
-
-        seen = pool[np.linspace(0, len(pool) - 1, min(len(pool), 8)).round().astype(int)]
-        scores = (pair_losses(render_final, held_out, pair), pair_losses(render_final, seen, pair))
     final_state = state(cfg.epochs)
     if checkpoint is not None:
         checkpoint(final_state)
@@ -337,8 +284,6 @@ def _fit_single(vertices_per_frame, triangles, uvs, camera: Camera, target_rgb, 
         cpu_seconds=time.process_time() - c0,
         state=final_state,
         materials=evidence,
-        held_out_loss=None if scores is None else scores[0],
-        fitted_loss=None if scores is None else scores[1],
     )
 
 
@@ -407,11 +352,6 @@ def save_appearance(result: AppearanceResult, out_dir) -> dict[str, Path]:
     if result.materials is not None:
         summary["materials"] = result.materials
         summary["undetermined"] = undetermined_note(result.materials)
-    if result.start_choice is not None:
-        summary["start_choice"] = result.start_choice
-        note = undetermined_roughness_note(result.start_choice)
-        if note:
-            summary["undetermined"] = " ".join(x for x in (summary.get("undetermined"), note + ".") if x)
     atomic_write_json(paths["summary"], summary)
     return paths
 
@@ -431,5 +371,4 @@ def load_appearance(out_dir) -> AppearanceResult:
         seconds=float(summary.get("seconds", 0.0)),
         cpu_seconds=float(summary.get("cpu_seconds", 0.0)),
         materials=summary.get("materials"),
-        start_choice=summary.get("start_choice"),
     )

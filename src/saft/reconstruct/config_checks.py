@@ -72,9 +72,6 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "appearance.lambda_metallic_l1": (0, INF, True),
     "appearance.evidence_threshold": (0, INF, True),
     "appearance.evidence_spp": (1, 1_000_000, True),
-    "appearance.matte_start_roughness": (0, 1, True),
-    "appearance.holdout_every": (0, 1_000_000, True),
-    "appearance.determined_z": (0, INF, True),
 }
 
 # Ranges [lo, hi] given in the config, each with the initial value that must lie in it: the log10
