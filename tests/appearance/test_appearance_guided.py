@@ -38,6 +38,23 @@ def test_guided_maps_start_from_the_texture_and_the_prior_has_gradients():
     assert vals["roughness"][1] > 0.999 and vals["metallic"][1] < 1e-3
 
 
+def test_gain_chroma_prices_only_the_gains_colour():
+    """A grey gain (any brightness) costs nothing; a coloured one its mean squared deviation from grey, and
+    the gradient pulls each channel towards the cell's grey."""
+    model = GuidedMaps(_two_colour_texture(32), size=32, gain_grid=2, clusters=2)
+    with torch.no_grad():
+        model.gain.fill_(0.7)                  # brighter, still grey
+    assert model.gain_chroma().item() == pytest.approx(0.0, abs=1e-12)
+    with torch.no_grad():
+        model.gain.zero_()
+        model.gain[0, 2] = 0.3                 # every cell bluer: deviations (-0.1, -0.1, +0.2)
+    assert model.gain_chroma().item() == pytest.approx((0.01 + 0.01 + 0.04) / 3, rel=1e-5)
+    model.gain_chroma().backward()
+    g = model.gain.grad[0, :, 0, 0]
+    assert g[2] > 0 and g[0] < 0 and g[1] < 0   # a descent step makes blue less and red, green more
+    assert g.sum().item() == pytest.approx(0.0, abs=1e-7)   # and leaves the grey brightness alone
+
+
 def test_evidence_marks_clusters_the_images_cannot_see():
     """A fake renderer whose image depends only on cluster 0's roughness: cluster 1 is undetermined."""
     tex = _two_colour_texture(32)

@@ -27,6 +27,9 @@ class AppearanceConfig:
     clusters: int = 6                    # maps="guided": material clusters (k-means on the texture's colours)
     texture_smoothing: float = 0.0       # maps="guided": σ (texels) of the blur inside each cluster
     lambda_metallic_l1: float = 0.0      # maps="guided": area-weighted mean metallic (sparsity prior)
+    # maps="guided": mean squared colour of the log-gain grid (each cell's channels minus their mean), a
+    # prior that ties the gain's colour to grey so the light's colour goes to the env map (0 = off)
+    lambda_gain_chroma: float = 0.0
     # maps="guided": a cluster whose fitted material lowers the loss by less than this (relative) against
     # matte is set to matte and reported undetermined (appearance.evidence); 0 = no test
     evidence_threshold: float = 0.0

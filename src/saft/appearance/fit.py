@@ -227,6 +227,8 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
         reg = cfg.lambda_env_l1 * env_amplitude(env_eff) + cfg.lambda_env_smooth * env_smoothness(env_eff)
         if isinstance(model, GuidedMaps):
             reg = reg + cfg.lambda_metallic_l1 * model.metallic_l1()
+            if cfg.lambda_gain_chroma > 0:
+                reg = reg + cfg.lambda_gain_chroma * model.gain_chroma()
         opt_maps.zero_grad(set_to_none=True)
         opt_env.zero_grad(set_to_none=True)
         outs = [maps[k] for k in leaves] + [env_eff]

@@ -13,7 +13,9 @@ what it can determine (issue 28):
   metallic (sigmoid of a free logit): 2K numbers estimated from every pixel of every frame instead of
   2·S² noisy texels;
 * ``metallic_l1()``: the area-weighted mean metallic, a sparsity prior that keeps clusters dielectric
-  unless the data insists.
+  unless the data insists;
+* ``gain_chroma()``: the mean squared colour of the log-gain grid (a grey gain costs nothing), a prior
+  against the gain × light colour trade-off that makes rough fabrics glossy (issue 28).
 """
 
 from __future__ import annotations
@@ -148,6 +150,10 @@ class GuidedMaps(nn.Module):
     def set_dielectric(self, k: int) -> None:
         """Cluster k to metallic 0 (a fitted metallic of a few per cent is noise, not a material)."""
         self.metal_logit[k] = -20.0
+
+    def gain_chroma(self) -> torch.Tensor:
+        """Mean over the gain grid's cells and channels of (G_c − mean_c G)²: 0 for any grey gain."""
+        return (self.gain - self.gain.mean(dim=1, keepdim=True)).pow(2).mean()
 
     def metallic_l1(self) -> torch.Tensor:
         """Area-weighted mean metallic (the sparsity prior)."""

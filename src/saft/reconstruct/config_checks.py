@@ -71,6 +71,7 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "appearance.clusters": (1, 64, True),
     "appearance.texture_smoothing": (0, INF, True),
     "appearance.lambda_metallic_l1": (0, INF, True),
+    "appearance.lambda_gain_chroma": (0, INF, True),
     "appearance.evidence_threshold": (0, INF, True),
     "appearance.evidence_spp": (1, 1_000_000, True),
 }
