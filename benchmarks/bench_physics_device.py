@@ -31,8 +31,9 @@ from saft.physics.simulation import DENSE_SOLVERS
 # CG ("cg", ~12 s per 50-frame run on an H200 in issue 27: its 3-frame probes give the projection and it is
 # skipped unless --budget-s allows it)
 ALL = (*DENSE_SOLVERS, "dense:20:25", "cg")
-_LAUNCH = ("cudaLaunchKernel", "cudaLaunchKernelExC", "cuLaunchKernel", "cuLaunchKernelEx")
-_SYNC = ("cudaStreamSynchronize", "cudaDeviceSynchronize", "cudaEventSynchronize")
+# the profiler's names of a kernel launch and of a host synchronisation (also read by bench_r1, bench_render)
+LAUNCH_EVENTS = ("cudaLaunchKernel", "cudaLaunchKernelExC", "cuLaunchKernel", "cuLaunchKernelEx")
+SYNC_EVENTS = ("cudaStreamSynchronize", "cudaDeviceSynchronize", "cudaEventSynchronize")
 
 
 def _solver_names(spec):
@@ -100,9 +101,9 @@ def _profile(topo, frames, solver, tol, run_once, compile):
             print(f"    {e.key:24s} calls {e.count:6d}  cpu {e.cpu_time_total / 1e3:8.1f} ms  "
                   f"gpu {dev_ms(e):8.1f} ms")
     count = {e.key: e.count for e in ka}
-    launches = sum(count.get(k, 0) for k in _LAUNCH)
+    launches = sum(count.get(k, 0) for k in LAUNCH_EVENTS)
     graphs = count.get("cudaGraphLaunch", 0)
-    syncs = sum(count.get(k, 0) for k in _SYNC)
+    syncs = sum(count.get(k, 0) for k in SYNC_EVENTS)
     copies = count.get("cudaMemcpyAsync", 0)
     gpu_rows = [e for e in ka if getattr(e, "device_type", None) == torch.autograd.DeviceType.CUDA]
     busy = sum(dev_ms(e, True) for e in gpu_rows)  # kernels and copies (graph replays' kernels included)

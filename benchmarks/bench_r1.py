@@ -34,6 +34,7 @@ from pathlib import Path
 import torch
 
 
+from bench_physics_device import LAUNCH_EVENTS, SYNC_EVENTS
 from saft.evaluate import evaluate_result_dir, ground_truth_spec_for
 from saft.reconstruct import reconstruct
 from saft.reconstruct.config import load_saft_config
@@ -85,10 +86,8 @@ def _profile_table(prof) -> str:
         lines += ["", f"{'op (by ' + title + ' time)':60s} {'calls':>8s} {'ms':>10s}"]
         for e in sorted((e for e in ev if not e.key.startswith("saft.")), key=lambda e: -key(e))[:25]:
             lines.append(f"{e.key[:60]:60s} {e.count:8d} {key(e):10.1f}")
-    launches = sum(e.count for e in ev if e.key in ("cudaLaunchKernel", "cudaLaunchKernelExC", "cuLaunchKernel",
-                                                     "cuLaunchKernelEx", "cudaGraphLaunch"))
-    syncs = sum(e.count for e in ev if e.key in ("cudaStreamSynchronize", "cudaDeviceSynchronize",
-                                                  "cudaEventSynchronize"))
+    launches = sum(e.count for e in ev if e.key in LAUNCH_EVENTS + ("cudaGraphLaunch",))
+    syncs = sum(e.count for e in ev if e.key in SYNC_EVENTS)
     lines += ["", f"launches (kernels and graphs) {launches}, host synchronisations {syncs}"]
     return "\n".join(lines)
 

@@ -112,9 +112,9 @@ def main(argv=None) -> int:
             bench(half, mesh, tex, R, device, 5)
         ev = prof.key_averages()
         print(ev.table(sort_by="self_cpu_time_total", row_limit=25))
-        counts = {k: sum(e.count for e in ev if e.key == k) for k in
-                  ("cudaLaunchKernel", "cudaLaunchKernelExC", "cuLaunchKernel", "cudaStreamSynchronize",
-                   "cudaMemcpyAsync", "cudaDeviceSynchronize")}
+        from bench_physics_device import LAUNCH_EVENTS, SYNC_EVENTS
+
+        counts = {k: sum(e.count for e in ev if e.key == k) for k in LAUNCH_EVENTS + SYNC_EVENTS + ("cudaMemcpyAsync",)}
         print("per profiled step (8 steps):", {k: v / 8 for k, v in counts.items() if v})
     print(f"best thread count at 350x400: {best}")
     print(f"render_fwd_bwd_ms_700x800_{device.type}_{R.name}={wall_full[best]:.2f}")

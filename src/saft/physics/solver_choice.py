@@ -31,9 +31,12 @@ def solver_for(topology: ClothTopology, solver: str, tol: float, stats: SolveSta
     if solver == "auto":
         # never depends on what is importable: CHOLMOD (opt-in) gives different numbers within the tolerance,
         # and reconstructions are sensitive to that noise. Other devices: the reused dense factor (solver_dense)
-        solver = os.environ.get(ENV_DENSE_SOLVER, "dense") if topology.device.type != "cpu" else "lu"
-        if solver not in DENSE_SOLVERS and solver != "lu":
-            raise ValueError(f"{ENV_DENSE_SOLVER}={solver!r} is not one of {', '.join(DENSE_SOLVERS)}")
+        if topology.device.type == "cpu":
+            solver = "lu"
+        else:
+            solver = os.environ.get(ENV_DENSE_SOLVER, "dense")
+            if solver not in DENSE_SOLVERS:
+                raise ValueError(f"{ENV_DENSE_SOLVER}={solver!r} is not one of {', '.join(DENSE_SOLVERS)}")
     if solver in DENSE_SOLVERS:
         return DenseFactorSolver(topology.csr_indptr, topology.csr_indices, topology.device, tol=tol, stats=stats,
                                  compile=compile, cache=cache, step_offset=first_step, **DENSE_SOLVERS[solver])

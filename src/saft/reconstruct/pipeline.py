@@ -198,8 +198,9 @@ def reconstruct(scene: Scene, cfg: SaftConfig, out_dir: str | Path, *, resume: b
         # the first physics step on CUDA compiles its kernels here (torch.compile, cached on disk afterwards)
         t_est = time.perf_counter()
         log_estimate(ctx, sim, cfg, scene.num_frames, scene.gravity_or_default())
-        t_counted += time.perf_counter() - t_est
-        timings["estimate"] = timings.get("estimate", 0.0) + time.perf_counter() - t_est
+        t_est = time.perf_counter() - t_est
+        t_counted += t_est
+        timings["estimate"] = timings.get("estimate", 0.0) + t_est
     # the rest of what comes before the phases: checks, the device plan (nvdiffrast's probe), the rasterizer
     timings["setup"] = timings.get("setup", 0.0) + time.perf_counter() - t_start - t_counted
     state = ctx.state
