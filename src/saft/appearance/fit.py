@@ -14,6 +14,7 @@ import torch
 import torch.nn.functional as Fnn
 
 from saft.appearance.config import AppearanceConfig
+from saft.appearance.detail import first_frames_detail_share
 from saft.appearance.evidence import cluster_evidence, undetermined_note
 from saft.appearance.guided import GuidedMaps
 from saft.appearance.mitsuba_backend import load_mitsuba
@@ -165,6 +166,10 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
 
     torch.manual_seed(cfg.seed)
     model = _build_model(cfg, init_texture).to(dev)
+    detail_fit = isinstance(model, GuidedMaps) and cfg.detail_frames > 0 and n_frames > 1 and cfg.detail_mode == "fit"
+    if isinstance(model, GuidedMaps) and cfg.detail_frames > 0 and n_frames > 1 and cfg.detail_mode == "prior":
+        model.fix_detail_share(first_frames_detail_share(model, verts, triangles, uvs, camera, rgb, mask,
+                                                         cfg.detail_frames, cfg.texture_smoothing))
     if cfg.env_levels > 1:
         env = PyramidEnvironmentMap(cfg.env_height, cfg.env_width, cfg.env_levels, cfg.env_init, cfg.env_min).to(dev)
     else:
@@ -224,6 +229,14 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
                     report = masked_srgb_mse(img, rgb_t[f], mask_t[f])
             (loss / len(frames)).backward()
             epoch_loss += float(report.detach()) / len(frames)
+        if detail_fit:  # the detail share learns from one of frames 1..n only (their motion is the most reliable)
+            fe = 1 + epoch % min(cfg.detail_frames, n_frames - 1)
+            d_leaf = maps["diffuse"].detach().requires_grad_(True)
+            renderer.set_vertices(verts[fe])
+            img = renderer.render(d_leaf, leaves["roughness"].detach(), leaves["metallic"].detach(), env_leaf.detach(),
+                                  spp=cfg.spp, seed=(cfg.epochs + epoch) * n_frames + fe)
+            masked_linearised_srgb_mse(img, lin_t[fe], slope_t[fe], mask_t[fe]).backward()
+            detail_grad = torch.autograd.grad(maps["diffuse"], model.detail_logit, d_leaf.grad, retain_graph=True)[0]
         reg = cfg.lambda_env_l1 * env_amplitude(env_eff) + cfg.lambda_env_smooth * env_smoothness(env_eff)
         if isinstance(model, GuidedMaps):
             reg = reg + cfg.lambda_metallic_l1 * model.metallic_l1()
@@ -235,6 +248,8 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
         grads = [leaves[k].grad if leaves[k].grad is not None else torch.zeros_like(leaves[k]) for k in leaves]
         grads.append(env_leaf.grad if env_leaf.grad is not None else torch.zeros_like(env_leaf))
         torch.autograd.backward(outs + [reg], grads + [torch.ones_like(reg)])
+        if detail_fit:
+            model.detail_logit.grad = detail_grad
         for p in list(model.parameters()) + list(env.parameters()):
             if p.grad is not None and not torch.isfinite(p.grad).all():
                 p.grad = None  # skip a non-finite step (Monte Carlo outlier)
