@@ -1,12 +1,13 @@
-"""The detail share decided from the first frames: texels found on the surface, frames sampled into texture
-space (hidden texels left out), a pattern that repeats told from noise that does not."""
+"""Which frames teach the detail share: texels found on the surface, frames sampled into texture space (hidden
+texels left out), a frame whose motion lines the texture's weave up told from one that does not."""
 
 import numpy as np
 import pytest
 import torch
 
-from saft.appearance.detail import detail_share, first_frames_detail_share, project_to_texture, texel_triangles
-from saft.appearance.guided import GuidedMaps, smooth_within_clusters
+from saft.appearance.detail import (detail_repeat_per_frame, project_to_texture, texel_triangles,
+                                   untrusted_detail_frames)
+from saft.appearance.guided import GuidedMaps
 from saft.appearance.params import srgb_to_linear
 from saft.scene.camera import look_at
 
@@ -71,95 +72,67 @@ def test_projection_samples_the_image_where_the_surface_is_seen():
     assert 0.5 < back.mean() < 0.9
 
 
-def _frames_in_texture_space(pattern_amp, noise_amp, n_frames, size=64, seed=0):
-    """Two clusters (left, right half): frame f sees base colour + a fixed pattern of pattern_amp (left
-    half only: a fine weave) + its own noise of noise_amp, under a shading that changes between frames."""
-    rng = np.random.default_rng(seed)
-    labels = np.zeros((size, size), np.int64)
-    labels[:, size // 2:] = 1
-    base = np.where(labels[..., None] == 0, 0.4, 0.2) * np.ones(3)
-    weave = pattern_amp * np.sign(np.sin(np.arange(size) * np.pi / 2 + 0.3))[None, :, None] * (labels[..., None] == 0)
-    frames = []
-    for f in range(n_frames):
-        shade = 1.0 + 0.2 * f
-        values = shade * (base + weave + noise_amp * rng.standard_normal((size, size, 3)))
-        frames.append((values, np.ones((size, size), bool)))
-    texture = frames[0][0] / 1.0                        # the "phase-1 texture": frame 0 (its noise included)
-    smooth = smooth_within_clusters(texture, labels, 2.0)
-    return texture - smooth, smooth, labels, frames
-
-
-def test_a_pattern_that_repeats_is_kept_and_noise_that_does_not_is_dropped():
-    detail, smooth, labels, frames = _frames_in_texture_space(pattern_amp=0.05, noise_amp=0.01, n_frames=3)
-    share = detail_share(detail, smooth, labels, frames, sigma=2.0)
-    assert share[0] > 0.85        # the weave: the same in every frame
-    assert share[1] < 0.1         # plain cloth: its detail is frame 0's noise, which no later frame repeats
-    # more noise on the weave: a smaller share, about the weave's part of the detail's variance
-    detail, smooth, labels, frames = _frames_in_texture_space(pattern_amp=0.02, noise_amp=0.02, n_frames=3)
-    noisy = detail_share(detail, smooth, labels, frames, sigma=2.0)
-    assert 0.3 < noisy[0] < 0.85 and noisy[1] < 0.1
-    with pytest.raises(ValueError):
-        detail_share(detail, smooth, labels, frames[:1], sigma=2.0)
-
-
-def test_fixed_share_is_used_and_not_learnt():
-    rng = np.random.default_rng(1)
-    tex = np.clip(0.4 + 0.05 * rng.standard_normal((32, 32, 3)), 0.01, 1).astype(np.float32)
-    tex[:, 16:] *= 0.3
-    model = GuidedMaps(tex, size=32, gain_grid=2, clusters=2, smoothing=2.0)
-    share = np.array([0.8, 0.1])[: model.num_clusters]
-    model.fix_detail_share(share)
-    assert not model.detail_logit.requires_grad
-    expect = model.texture + model.detail * torch.einsum("k,khw->hw", torch.as_tensor(share, dtype=torch.float32),
-                                                         model.members)[..., None]
-    assert torch.allclose(model()["diffuse"], expect.clamp(0, 1), atol=1e-5)
-    assert all(p is not model.detail_logit for p in model.parameters() if p.requires_grad)
-
-
-def test_first_frames_share_of_a_still_woven_sheet():
-    """End to end through the geometry: a still sheet whose texture is a weave, seen in three frames with
-    independent noise: the weave's cluster keeps most of its detail."""
+def _woven_sheet_video(shifts, noise=0.005, weave=0.15, size=64, seed=2):
+    """A still sheet whose texture is a weave (stripes 3 pixels wide), one frame per entry of `shifts`: the
+    frame's mesh is the true one moved sideways by that many metres (a motion error), each frame with its
+    own noise. Returns the GuidedMaps of frame 0's texture and what detail_repeat_per_frame needs."""
     verts, tri, uvs = _sheet()
     cam = _camera(160, 160, 200.0)
-    rng = np.random.default_rng(2)
-    size = 64
+    rng = np.random.default_rng(seed)
     tri_of, bary = texel_triangles(tri, uvs, size)
     points = (verts[tri[tri_of]] * bary[..., None]).sum(-2).reshape(-1, 3)
-    col = np.arange(cam.width)
-    weave = 0.15 * (np.sin(col * np.pi / 3) > 0)               # stripes 3 pixels wide
-    clean = np.broadcast_to((0.3 + weave)[None, :, None], (cam.height, cam.width, 3))
-    frames = np.stack([np.clip(clean + 0.005 * rng.standard_normal(clean.shape), 0, 1) for _ in range(3)])
-    mask = np.ones(frames.shape[:3])
-    # the phase-1 texture: frame 0 sampled at the texels (sRGB), as the texture phase would have fitted it
-    px, _ = cam.project(points)
+    stripes = weave * (np.sin(np.arange(cam.width) * np.pi / 3) > 0)
+    clean = np.broadcast_to((0.3 + stripes)[None, :, None], (cam.height, cam.width, 3))
+    frames = np.stack([np.clip(clean + noise * rng.standard_normal(clean.shape), 0, 1) for _ in shifts])
+    px, _ = cam.project(points)   # the phase-1 texture: frame 0 at the texels, as the texture phase fits it
     tex = frames[0][np.clip(np.round(px[:, 1]).astype(int), 0, cam.height - 1),
                     np.clip(np.round(px[:, 0]).astype(int), 0, cam.width - 1)].reshape(size, size, 3)
     model = GuidedMaps(srgb_to_linear(tex), size=size, gain_grid=2, clusters=1, smoothing=3.0)
-    share = first_frames_detail_share(model, np.stack([verts] * 3), tri, uvs, cam, frames, mask, 2, 3.0)
-    assert share.shape == (model.num_clusters,) and share.max() > 0.7
+    meshes = np.stack([verts + [dx, 0.0, 0.0] for dx in shifts])
+    return model, meshes, tri, uvs, cam, frames, np.ones(frames.shape[:3])
 
 
-@pytest.mark.parametrize("mode", ["prior", "fit"])
-def test_fit_decides_the_detail_share_from_the_first_frames(mode):
-    """In a fit: "prior" holds the share at the first frames' estimate, "fit" learns it from frames 1..n
-    only (the other maps still learn from every frame). Default (detail_frames = 0): learnt as before."""
+def test_a_frame_whose_motion_misses_the_weave_repeats_little_of_it():
+    """A weave seen in 4 frames: frames 1-2 with the right mesh repeat most of the texture's detail; frame 3,
+    whose mesh is off by half a stripe (1.5 px = 7.5 mm), repeats little and is the one left out."""
+    model, meshes, tri, uvs, cam, frames, mask = _woven_sheet_video([0.0, 0.0, 0.0, 0.0075])
+    R = detail_repeat_per_frame(model, meshes, tri, uvs, cam, frames, mask, 3.0)
+    assert R[0] == 1.0 and R[1] > 0.7 and R[2] > 0.7 and R[3] < 0.5 * R[1:3].mean()
+    assert untrusted_detail_frames(model, meshes, tri, uvs, cam, frames, mask, 3.0, trust=0.5) == [3]
+    assert untrusted_detail_frames(model, meshes, tri, uvs, cam, frames, mask, 3.0, trust=0.0) == []
+    assert untrusted_detail_frames(model, meshes[:2], tri, uvs, cam, frames[:2], mask[:2], 3.0, trust=0.5) == []
+
+
+def test_noise_is_not_a_pattern_and_no_frame_is_judged():
+    """A plain sheet: the texture's detail is frame 0's noise, which no later frame repeats (R ≈ 0 below
+    FLOOR), so even a frame with a wrong mesh is kept."""
+    model, meshes, tri, uvs, cam, frames, mask = _woven_sheet_video([0.0, 0.0, 0.0, 0.0075], noise=0.03, weave=0.0)
+    R = detail_repeat_per_frame(model, meshes, tri, uvs, cam, frames, mask, 3.0)
+    assert np.abs(R[1:]).max() < 0.1
+    assert untrusted_detail_frames(model, meshes, tri, uvs, cam, frames, mask, 3.0, trust=0.5) == []
+
+
+@pytest.mark.parametrize("untrusted", [False, True])
+def test_untrusted_frames_do_not_teach_the_detail_share(monkeypatch, tmp_path, untrusted):
+    """A fit in which every frame is judged untrusted leaves the detail share where it started (one half)
+    while the other maps learn; with none untrusted the share learns as before."""
+    import saft.appearance.fit as fit_module
+    from saft.appearance.fit import load_appearance, save_appearance
     from saft.appearance.config import cpu_profile
-    from saft.appearance.fit import fit_appearance
     from saft.appearance.params import linear_to_srgb
     from saft.synthetic.appearance import make_scene
 
     sc = make_scene(n_frames=3, image_size=32, map_size=32, render_spp=16)
     texture = linear_to_srgb(torch.as_tensor(sc.diffuse)).numpy()
+    monkeypatch.setattr(fit_module, "untrusted_detail_frames",
+                        lambda *a, **k: [0, 1, 2] if untrusted else [])
     cfg = cpu_profile()
-    cfg.epochs, cfg.frames_per_epoch, cfg.texel_size, cfg.image_scale = 4, 1, 64, 1.0
-    cfg.detail_frames, cfg.detail_mode = 2, mode
-    res = fit_appearance(sc.vertices, sc.triangles, sc.uvs, sc.camera, sc.rgb, sc.mask, cfg, init_texture=texture)
+    cfg.epochs, cfg.frames_per_epoch, cfg.texel_size, cfg.image_scale, cfg.detail_trust = 3, 2, 64, 1.0, 0.5
+    res = fit_module.fit_appearance(sc.vertices, sc.triangles, sc.uvs, sc.camera, sc.rgb, sc.mask, cfg,
+                                    init_texture=texture)
     share = torch.sigmoid(res.state["model"]["detail_logit"])
-    if mode == "prior":
-        model = GuidedMaps(srgb_to_linear(texture), size=64, gain_grid=cfg.gain_grid, clusters=cfg.clusters,
-                           smoothing=cfg.texture_smoothing)
-        expect = first_frames_detail_share(model, sc.vertices, sc.triangles, sc.uvs, sc.camera, sc.rgb, sc.mask, 2,
-                                           cfg.texture_smoothing)
-        assert np.allclose(share.numpy(), np.clip(expect, 1e-4, 1 - 1e-4), atol=1e-5)
-    else:
-        assert not torch.allclose(share, torch.full_like(share, 0.5))   # learnt, from its start at one half
+    assert torch.allclose(share, torch.full_like(share, 0.5)) == untrusted
+    assert not torch.allclose(res.state["model"]["gain"], torch.zeros(1))   # the rest learnt in both
+    assert res.detail_frames_left_out == ([0, 1, 2] if untrusted else [])
+    save_appearance(res, tmp_path)      # written into appearance.json, read back
+    assert load_appearance(tmp_path).detail_frames_left_out == res.detail_frames_left_out

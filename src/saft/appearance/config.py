@@ -26,10 +26,10 @@ class AppearanceConfig:
     gain_grid: int = 16                  # maps="guided": side of the diffuse log-gain grid
     clusters: int = 6                    # maps="guided": material clusters (k-means on the texture's colours)
     texture_smoothing: float = 0.0       # maps="guided": σ (texels) of the blur inside each cluster
-    # maps="guided": 0 = each cluster's share of the detail that the blur removed is learnt from the frames;
-    # n > 0 = it is fixed before the fit from frames 1..n against frame 0 (appearance.detail)
-    detail_frames: int = 0
-    detail_mode: Literal["prior", "fit"] = "prior"   # "fit": learnt in the fit from frames 1..n only
+    # maps="guided": a frame teaches the per-cluster detail share only if it repeats at least this fraction
+    # of the texture's detail that frames 1-2 repeat (appearance.detail; its motion lines the pattern up);
+    # 0 = every frame teaches it
+    detail_trust: float = 0.0
     lambda_metallic_l1: float = 0.0      # maps="guided": area-weighted mean metallic (sparsity prior)
     # maps="guided": mean squared colour of the log-gain grid (each cell's channels minus their mean), a
     # prior that ties the gain's colour to grey so the light's colour goes to the env map (0 = off)
@@ -100,8 +100,8 @@ class AppearanceConfig:
             bad("spp", "must be >= 1")
         if not (0 < self.image_scale <= 1):
             bad("image_scale", "must lie in (0, 1]")
-        if self.detail_frames < 0:
-            bad("detail_frames", "must be >= 0")
+        if not (0 <= self.detail_trust <= 1):
+            bad("detail_trust", "must lie in [0, 1]")
         if self.frames_per_epoch < 0:
             bad("frames_per_epoch", "must be >= 0")
         if self.env_height < 2 or self.env_width < 2:

@@ -1,23 +1,30 @@
-"""How much of the texture's fine detail is pattern: a per-cluster share decided from the first frames.
+"""Which frames may teach the detail share: a frame whose motion is off by a fraction of a thread is left out.
 
 ``GuidedMaps`` blurs the phase-1 texture T inside each colour cluster (T_s: the texture's pixel noise
-averaged away) and gives back a share a_k of the removed detail D = T − T_s per cluster. Learnt from all
-frames, a_k falls wherever the motion of later frames is off by a fraction of a thread: a weave that does
-not line up across frames looks like noise (issue 28, BENCHMARKS.md "Why plaid loses with saft's motion").
+averaged away) and gives back a learnt share a_k of the removed detail D = T − T_s per cluster. Learnt from
+every frame, a_k falls wherever the motion of later frames is off by a fraction of a thread: a weave that
+does not line up across frames looks like noise, and the fit drops it (issue 28, BENCHMARKS.md "Why plaid
+loses with saft's motion").
 
-Here a_k is estimated before the fit from the frames right after frame 0, whose motion is the most reliable
-(the cloth has hardly moved, and saft's shape error is smallest there). Each frame f is sampled into
-texture space through its mesh (``project_to_texture``: every texel's point on the surface, projected into
-the image, visible texels only), high-passed inside the same clusters (D_f), and brought to frame 0's
-shading (× T_s / its blurred self). The detail of the texture is compared with each frame's detail:
+Here the frames are tested before the fit, without trusting their motion beyond what the test itself
+checks. Each frame f is sampled into texture space through its mesh (``project_to_texture``: every texel's
+point on the surface, projected into the image, visible texels only), high-passed inside the same clusters
+(D_f) and brought to frame 0's shading. The share of the texture's detail that the frame repeats is
 
-    a_k = clamp( mean_{f ≥ 1} Σ_{texels of k} D · D_f  /  Σ_{texels of k} D · D_0 , 0, 1 )
+    R_f = Σ D · D_f / Σ D · D_0        (over the texels seen in both frames; R_0 = 1)
 
 Frame 0's own detail D_0 shares the pattern AND the noise with D (the texture was fitted to frame 0); a
-later frame shares only the pattern (its noise is its own). The ratio is the share of D's covariance with
-the video that repeats in other frames: about 1 for a weave, about 0 for pixel noise. Normalising by D_0
-rather than by Σ D² cancels the amplitude that the texture fit gives the detail (the texture phase
-deconvolves the pixels' footprint: D is about 3× stronger than the detail it explains in a frame).
+later frame shares only the pattern, and only where its motion lines the pattern up. Normalising by D_0
+rather than by Σ D² cancels the amplitude that the texture fit gives the detail (it deconvolves the
+pixels' footprint: D is about 3× stronger than the detail it explains in a frame). On the benchmark, R_f
+stays within 0.7–1 of the first frames' R on the true motion of every fabric and on saft's motion of the
+print, and falls to a quarter on saft's motion of the plaid after frame 10 (the weave no longer lines up).
+
+``untrusted_detail_frames``: the frames whose R_f is below ``trust`` × the mean R of frames 1–2 (the
+cloth has hardly moved there, and saft's shape error is smallest). The fit then takes the detail share's
+gradient from the other frames only; every other parameter still learns from every frame. Where the first
+frames repeat less than ``FLOOR`` of the detail (plain cotton, satin: the detail is the texture's pixel
+noise, R ≈ 0), the test says nothing and every frame is kept.
 """
 
 from __future__ import annotations
@@ -111,43 +118,46 @@ def frame_detail(values: np.ndarray, valid: np.ndarray, smooth: np.ndarray, labe
     return np.where(valid[..., None], (values - blur) * smooth / np.maximum(blur, 1e-4), 0.0)
 
 
-def detail_share(detail: np.ndarray, smooth: np.ndarray, labels: np.ndarray, projected: list, sigma: float,
-                 min_texels: int = 64) -> np.ndarray:
-    """(K,) the share of each cluster's detail that repeats in later frames (module docstring).
-
-    detail, smooth (S, S, 3): D and T_s of the texture (linear); labels (S, S) in [0, K); projected: the
-    list of (values, valid) of ``project_to_texture`` for frame 0 then frames 1..n (n ≥ 1); sigma: the
-    blur of T_s. A cluster with fewer than min_texels seen in frame 0 and a later frame, or whose detail
-    does not correlate with frame 0's at all, gets 0 (no evidence of a pattern)."""
-    if len(projected) < 2:
-        raise ValueError("detail_share needs frame 0 and at least one later frame")
-    K = int(labels.max()) + 1
-    d = [frame_detail(v, ok, smooth, labels, sigma) for v, ok in projected]
-    valid0 = projected[0][1]
-    share = np.zeros(K)
-    for k in range(K):
-        ratios = []
-        for f in range(1, len(projected)):
-            m = (labels == k) & valid0 & projected[f][1]
-            if m.sum() < min_texels:
-                continue
-            c0 = float((detail[m] * d[0][m]).sum())
-            if c0 > 0:
-                ratios.append(float((detail[m] * d[f][m]).sum()) / c0)
-        share[k] = float(np.clip(np.mean(ratios), 0.0, 1.0)) if ratios else 0.0
-    return share
-
-
-def first_frames_detail_share(model, vertices, triangles, uvs, camera: Camera, rgb_srgb, mask, frames: int,
-                              sigma: float) -> np.ndarray:
-    """(K,) detail_share of a GuidedMaps `model` from frame 0 and frames 1..frames of the video: vertices
-    (F, V, 3), rgb_srgb (F, H, W, 3) sRGB in [0, 1], mask (F, H, W), camera the frames' own."""
+def detail_repeat_per_frame(model, vertices, triangles, uvs, camera: Camera, rgb_srgb, mask, sigma: float,
+                            frames=None) -> np.ndarray:
+    """(F,) for each frame f, R_f = Σ D·D_f / Σ D·D_0 over the texels seen in both (all clusters pooled):
+    how much of the texture's detail that frame repeats (1 for frame 0; a weave on a well-aligned frame
+    keeps most of it, the same weave on a frame whose motion is off by a fraction of a thread little).
+    frames: the frames to evaluate (default all); the others are NaN."""
     smooth = model.texture.detach().cpu().numpy().astype(np.float64)
     detail = model.detail.detach().cpu().numpy().astype(np.float64)
     labels = model.members.argmax(0).cpu().numpy()
     tri_of, bary = texel_triangles(triangles, uvs, smooth.shape[0])
-    projected = []
-    for f in range(min(frames, len(vertices) - 1) + 1):
+
+    def detail_of(f):
         linear = srgb_to_linear(np.clip(np.asarray(rgb_srgb[f], dtype=np.float64), 0.0, 1.0))
-        projected.append(project_to_texture(vertices[f], triangles, tri_of, bary, camera, linear, mask[f]))
-    return detail_share(detail, smooth, labels, projected, sigma)
+        values, valid = project_to_texture(vertices[f], triangles, tri_of, bary, camera, linear, mask[f])
+        return frame_detail(values, valid, smooth, labels, sigma), valid
+
+    d0, valid0 = detail_of(0)
+    out = np.full(len(vertices), np.nan)
+    out[0] = 1.0
+    for f in (range(1, len(vertices)) if frames is None else frames):
+        if f == 0:
+            continue
+        d, valid = detail_of(f)
+        m = valid0 & valid
+        c0 = float((detail[m] * d0[m]).sum())
+        out[f] = float((detail[m] * d[m]).sum()) / c0 if c0 > 0 else 0.0
+    return out
+
+
+FLOOR = 0.1    # below this repeat on the first frames the detail is noise everywhere: no frame is judged
+
+
+def untrusted_detail_frames(model, vertices, triangles, uvs, camera: Camera, rgb_srgb, mask, sigma: float,
+                            trust: float) -> list[int]:
+    """The frames (sorted) whose detail repeat R_f (detail_repeat_per_frame) is below trust × the mean R of
+    frames 1 and 2; none when that reference is below FLOOR or the video has fewer than 3 frames."""
+    if len(vertices) < 3 or trust <= 0:
+        return []
+    R = detail_repeat_per_frame(model, vertices, triangles, uvs, camera, rgb_srgb, mask, sigma)
+    ref = float(np.mean(R[1:3]))
+    if ref < FLOOR:
+        return []
+    return [int(f) for f in np.flatnonzero(R < trust * ref)]

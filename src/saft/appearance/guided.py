@@ -143,14 +143,6 @@ class GuidedMaps(nn.Module):
         }
 
     @torch.no_grad()
-    def fix_detail_share(self, share) -> None:
-        """Hold each cluster's detail share at `share` (K,) in [0, 1] instead of learning it
-        (appearance.detail: decided from the first frames, whose motion is the most reliable)."""
-        share = torch.as_tensor(np.asarray(share, dtype=np.float32)).clamp(1e-4, 1 - 1e-4)
-        self.detail_logit.copy_(torch.log(share / (1 - share)).to(self.detail_logit))
-        self.detail_logit.requires_grad_(False)
-
-    @torch.no_grad()
     def set_matte(self, k: int) -> None:
         """Cluster k to roughness 1, metallic 0 (appearance.evidence: the data did not determine it)."""
         self.rough_logit[k] = 20.0
