@@ -26,6 +26,14 @@ class AppearanceConfig:
     gain_grid: int = 16                  # maps="guided": side of the diffuse log-gain grid
     clusters: int = 6                    # maps="guided": material clusters (k-means on the texture's colours)
     texture_smoothing: float = 0.0       # maps="guided": σ (texels) of the blur inside each cluster
+    # maps="guided": a frame teaches the per-cluster detail share only if it repeats at least this fraction
+    # of the texture's detail that frames 1-2 repeat (appearance.detail: its motion lines the pattern up);
+    # 0 = every frame teaches it. The profiles' 0.5, with saft's motion (bench_appearance, 320x240, 32
+    # frames): plaid diffuse 19.72 -> 20.69 dB, relit 28.75 / 30.04 -> 30.03 / 31.33 dB (frames 12-31 left
+    # out); lame within 0.005 dB (frames 6-8 left out); cotton, print, satin and every fabric's true motion
+    # leave no frame out (the same fit). 0.75: plaid 20.76, 30.18 / 31.50, set on plaid alone, not taken
+    # (BENCHMARKS.md, issue 28, "Which frames may teach the detail share")
+    detail_trust: float = 0.0
     lambda_metallic_l1: float = 0.0      # maps="guided": area-weighted mean metallic (sparsity prior)
     # maps="guided": mean squared colour of the log-gain grid (each cell's channels minus their mean), a
     # prior that ties the gain's colour to grey so the light's colour goes to the env map (0 = off)
@@ -96,6 +104,8 @@ class AppearanceConfig:
             bad("spp", "must be >= 1")
         if not (0 < self.image_scale <= 1):
             bad("image_scale", "must lie in (0, 1]")
+        if not (0 <= self.detail_trust <= 1):
+            bad("detail_trust", "must lie in [0, 1]")
         if self.frames_per_epoch < 0:
             bad("frames_per_epoch", "must be >= 0")
         if self.env_height < 2 or self.env_width < 2:
@@ -121,8 +131,10 @@ def paper_profile() -> AppearanceConfig:
 # benchmarks/bench_appearance.py, BENCHMARKS.md "Appearance against ground truth"), shared by the CPU and
 # CUDA profiles: maps from the phase-1 texture (blurred inside colour clusters, shading divided out by an
 # 8×8 gain grid, roughness / metallic per cluster), metallic sparsity, the per-cluster evidence test, a
-# log-radiance pyramid env map (64×128 over 5 levels), learning rates decaying to a tenth.
+# log-radiance pyramid env map (64×128 over 5 levels), learning rates decaying to a tenth; the detail share
+# learnt only from the frames whose motion lines the texture's weave up (detail_trust).
 GUIDED = dict(maps="guided", texel_size=512, gain_grid=8, clusters=6, texture_smoothing=4.0, lambda_metallic_l1=0.01,
+              detail_trust=0.5,
               evidence_threshold=0.01, lr_texels=0.1, lr_final_factor=0.1, init_roughness=0.6, init_metallic=0.1,
               env_levels=5, lr_env=0.05, env_height=64, env_width=128)
 

@@ -14,6 +14,7 @@ import torch
 import torch.nn.functional as Fnn
 
 from saft.appearance.config import AppearanceConfig
+from saft.appearance.detail import untrusted_detail_frames
 from saft.appearance.evidence import cluster_evidence, undetermined_note
 from saft.appearance.guided import GuidedMaps
 from saft.appearance.mitsuba_backend import load_mitsuba
@@ -46,6 +47,8 @@ class AppearanceResult:
     # maps="guided": per material cluster, its area, roughness, metallic and whether the video determined
     # it (appearance.evidence); None for the other parametrisations
     materials: list[dict] | None = None
+    # maps="guided" with detail_trust > 0: the frames left out of the detail share's gradient (appearance.detail)
+    detail_frames_left_out: list[int] | None = None
 
 
 def _build_model(cfg: AppearanceConfig, init_texture) -> torch.nn.Module:
@@ -165,6 +168,10 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
 
     torch.manual_seed(cfg.seed)
     model = _build_model(cfg, init_texture).to(dev)
+    untrusted = set()   # frames that do not teach the detail share (appearance.detail)
+    if isinstance(model, GuidedMaps) and cfg.detail_trust > 0:
+        untrusted = set(untrusted_detail_frames(model, verts, triangles, uvs, camera, rgb, mask, cfg.texture_smoothing,
+                                                cfg.detail_trust))
     if cfg.env_levels > 1:
         env = PyramidEnvironmentMap(cfg.env_height, cfg.env_width, cfg.env_levels, cfg.env_init, cfg.env_min).to(dev)
     else:
@@ -211,7 +218,10 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
         leaves = {k: v.detach().requires_grad_(True) for k, v in maps.items()}
         env_leaf = env_eff.detach().requires_grad_(True)
         epoch_loss = 0.0
+        dropped = None
         for f in frames:
+            if f in untrusted:
+                before = leaves["diffuse"].grad.clone() if leaves["diffuse"].grad is not None else 0.0
             renderer.set_vertices(verts[f])
             img = renderer.render(leaves["diffuse"], leaves["roughness"], leaves["metallic"], env_leaf,
                                   spp=cfg.spp, seed=epoch * n_frames + int(f))
@@ -223,7 +233,11 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
                 with torch.no_grad():
                     report = masked_srgb_mse(img, rgb_t[f], mask_t[f])
             (loss / len(frames)).backward()
+            if f in untrusted:
+                dropped = (leaves["diffuse"].grad - before) + (0.0 if dropped is None else dropped)
             epoch_loss += float(report.detach()) / len(frames)
+        if dropped is not None:   # take the untrusted frames' part out of the detail share's gradient
+            dropped = torch.autograd.grad(maps["diffuse"], model.detail_logit, dropped, retain_graph=True)[0]
         reg = cfg.lambda_env_l1 * env_amplitude(env_eff) + cfg.lambda_env_smooth * env_smoothness(env_eff)
         if isinstance(model, GuidedMaps):
             reg = reg + cfg.lambda_metallic_l1 * model.metallic_l1()
@@ -235,6 +249,8 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
         grads = [leaves[k].grad if leaves[k].grad is not None else torch.zeros_like(leaves[k]) for k in leaves]
         grads.append(env_leaf.grad if env_leaf.grad is not None else torch.zeros_like(env_leaf))
         torch.autograd.backward(outs + [reg], grads + [torch.ones_like(reg)])
+        if dropped is not None and model.detail_logit.grad is not None:
+            model.detail_logit.grad -= dropped
         for p in list(model.parameters()) + list(env.parameters()):
             if p.grad is not None and not torch.isfinite(p.grad).all():
                 p.grad = None  # skip a non-finite step (Monte Carlo outlier)
@@ -286,6 +302,7 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
         cpu_seconds=time.process_time() - c0,
         state=final_state,
         materials=evidence,
+        detail_frames_left_out=sorted(untrusted) if isinstance(model, GuidedMaps) and cfg.detail_trust > 0 else None,
     )
 
 
@@ -354,6 +371,8 @@ def save_appearance(result: AppearanceResult, out_dir) -> dict[str, Path]:
     if result.materials is not None:
         summary["materials"] = result.materials
         summary["undetermined"] = undetermined_note(result.materials)
+    if result.detail_frames_left_out is not None:
+        summary["detail_frames_left_out"] = result.detail_frames_left_out
     atomic_write_json(paths["summary"], summary)
     return paths
 
@@ -373,4 +392,5 @@ def load_appearance(out_dir) -> AppearanceResult:
         seconds=float(summary.get("seconds", 0.0)),
         cpu_seconds=float(summary.get("cpu_seconds", 0.0)),
         materials=summary.get("materials"),
+        detail_frames_left_out=summary.get("detail_frames_left_out"),
     )

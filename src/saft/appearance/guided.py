@@ -75,15 +75,17 @@ def material_clusters(texture_linear: np.ndarray, k: int, seed: int = 0, sample:
     return labels.reshape(tex.shape[:2]).astype(np.int64)
 
 
-def smooth_within_clusters(texture: np.ndarray, labels: np.ndarray, sigma: float) -> np.ndarray:
+def smooth_within_clusters(texture: np.ndarray, labels: np.ndarray, sigma: float,
+                           weight: np.ndarray | None = None) -> np.ndarray:
     """The texture blurred by σ texels inside each cluster only (normalised convolution, Σ_k blur(T·M_k) /
     blur(M_k) on M_k): the phase-1 texture's pixel noise is averaged away while the edges between colours
-    (stripes, threads, print) stay sharp."""
+    (stripes, threads, print) stay sharp. weight (S, S) bool, optional: only these texels enter the blur
+    (M_k·weight; appearance.detail: the texels a frame sees), and the rest of the output is 0."""
     if sigma <= 0:
         return texture
     out = np.zeros_like(texture)
     for k in range(int(labels.max()) + 1):
-        m = (labels == k).astype(np.float64)
+        m = ((labels == k) & (True if weight is None else weight)).astype(np.float64)
         num = gaussian_filter(texture * m[..., None], sigma=(sigma, sigma, 0), mode="nearest")
         den = gaussian_filter(m, sigma=sigma, mode="nearest")[..., None]
         out += m[..., None] * num / np.maximum(den, 1e-6)

@@ -35,6 +35,7 @@ import numpy as np
 import torch
 import torch.nn.functional as Fnn
 
+from saft.appearance.detail import texel_triangles
 from saft.appearance.fit import _read_exr, _write_exr
 from saft.appearance.params import linear_to_srgb, srgb_to_linear
 from saft.appearance.renderer import ClothRenderer
@@ -108,25 +109,7 @@ def resize_map(a: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 
 def uv_coverage(triangles, uvs, size: int) -> np.ndarray:
     """(size, size) bool: texels whose centre lies in a UV triangle (row 0 = top, v = 1)."""
-    uv = np.asarray(uvs, dtype=np.float64)
-    pix = np.stack([uv[:, 0] * size - 0.5, (1.0 - uv[:, 1]) * size - 0.5], -1)  # (col, row)
-    out = np.zeros((size, size), bool)
-    for tri in np.asarray(triangles):
-        p = pix[tri]
-        lo = np.maximum(np.floor(p.min(0)).astype(int), 0)
-        hi = np.minimum(np.ceil(p.max(0)).astype(int), size - 1)
-        if (hi < lo).any():
-            continue
-        cc, rr = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1))
-        (x0, y0), (x1, y1), (x2, y2) = p
-        den = (y1 - y2) * (x0 - x2) + (x2 - x1) * (y0 - y2)
-        if abs(den) < 1e-12:
-            continue
-        a = ((y1 - y2) * (cc - x2) + (x2 - x1) * (rr - y2)) / den
-        b = ((y2 - y0) * (cc - x2) + (x0 - x2) * (rr - y2)) / den
-        inside = (a >= -1e-6) & (b >= -1e-6) & (a + b <= 1 + 1e-6)
-        out[rr[inside], cc[inside]] = True
-    return out
+    return texel_triangles(triangles, uvs, size)[0] >= 0
 
 
 def per_channel_scale(estimate: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> np.ndarray:
