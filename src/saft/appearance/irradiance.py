@@ -129,7 +129,9 @@ class FrameZeroIrradiance(nn.Module):
         super().__init__()
         self.grid = int(grid)
         normals = texel_normals(vertices0, triangles, uvs, camera.camera_to_world[:3, 3], self.grid)
-        self.register_buffer("matrix", irradiance_matrix(normals.reshape(-1, 3), *env_shape, oversample))
+        # not persistent: rebuilt from the geometry (at grid 64 and a 64×128 env map it is 134 MB)
+        self.register_buffer("matrix", irradiance_matrix(normals.reshape(-1, 3), *env_shape, oversample),
+                             persistent=False)
 
     def forward(self, env: torch.Tensor) -> torch.Tensor:
         return (self.matrix @ env.reshape(-1, 3)).reshape(self.grid, self.grid, 3)
