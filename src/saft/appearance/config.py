@@ -24,14 +24,6 @@ class AppearanceConfig:
     # texture times a coarse log-gain grid; roughness/metallic constant per colour cluster: appearance.guided)
     maps: Literal["decoder", "texels", "guided"] = "decoder"
     gain_grid: int = 16                  # maps="guided": side of the diffuse log-gain grid
-    # maps="guided": what divides the frame-0 shading out of the texture: "gain" (a free colour log-gain
-    # grid) or "irradiance" (π·T / E0, E0 the frame-0 irradiance from the fitted env map, times a grey
-    # log-gain grid: appearance.irradiance), E0 on an irradiance_grid² grid of the UV square
-    diffuse_shading: Literal["gain", "irradiance"] = "gain"
-    irradiance_grid: int = 64
-    # diffuse_shading="irradiance": the gains fitted on top of π·T / E0: "grey" (the gain_grid² grid, one
-    # channel), "global" (one per-channel factor), "grey+global", "none"
-    irradiance_gain: Literal["grey", "global", "grey+global", "none"] = "grey"
     clusters: int = 6                    # maps="guided": material clusters (k-means on the texture's colours)
     texture_smoothing: float = 0.0       # maps="guided": σ (texels) of the blur inside each cluster
     lambda_metallic_l1: float = 0.0      # maps="guided": area-weighted mean metallic (sparsity prior)
@@ -92,14 +84,6 @@ class AppearanceConfig:
             bad("lr_final_factor", "must lie in (0, 1]")
         if self.maps not in ("decoder", "texels", "guided"):
             bad("maps", "must be 'decoder', 'texels' or 'guided'")
-        if self.diffuse_shading not in ("gain", "irradiance"):
-            bad("diffuse_shading", "must be 'gain' or 'irradiance'")
-        if self.diffuse_shading == "irradiance" and self.maps != "guided":
-            bad("diffuse_shading", "'irradiance' divides the phase-1 texture: it needs maps = 'guided'")
-        if self.irradiance_grid < 2:
-            bad("irradiance_grid", "must be >= 2")
-        if self.irradiance_gain not in ("grey", "global", "grey+global", "none"):
-            bad("irradiance_gain", "must be 'grey', 'global', 'grey+global' or 'none'")
         if self.gain_grid < 1 or self.clusters < 1:
             bad("clusters", "gain_grid and clusters must be >= 1")
         if self.env_levels < 1 or (self.env_height >> (self.env_levels - 1)) < 1:

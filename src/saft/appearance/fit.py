@@ -16,7 +16,6 @@ import torch.nn.functional as Fnn
 from saft.appearance.config import AppearanceConfig
 from saft.appearance.evidence import cluster_evidence, undetermined_note
 from saft.appearance.guided import GuidedMaps
-from saft.appearance.irradiance import FrameZeroIrradiance, IrradianceMaps
 from saft.appearance.mitsuba_backend import load_mitsuba
 from saft.appearance.params import (EnvironmentMap, PyramidEnvironmentMap, TexelMaps, TextureDecoder, colour_weight,
                                     env_amplitude, env_smoothness, linear_to_srgb, srgb_to_linear)
@@ -49,20 +48,14 @@ class AppearanceResult:
     materials: list[dict] | None = None
 
 
-def _build_model(cfg: AppearanceConfig, init_texture, frame0=None) -> torch.nn.Module:
-    """frame0: (vertices (V, 3), triangles, uvs, camera) of frame 0, for diffuse_shading="irradiance"."""
+def _build_model(cfg: AppearanceConfig, init_texture) -> torch.nn.Module:
     if cfg.maps == "guided":
         if init_texture is None:
             raise SaftInputError("appearance.maps", "'guided' maps start from the phase-1 texture; none was given")
-        kw = dict(size=cfg.texel_size, gain_grid=cfg.gain_grid, clusters=cfg.clusters, min_roughness=cfg.min_roughness,
-                  init_roughness=cfg.init_roughness, init_metallic=cfg.init_metallic, seed=cfg.seed,
-                  smoothing=cfg.texture_smoothing)
-        texture = srgb_to_linear(np.asarray(init_texture, dtype=np.float32)[..., :3])
-        if cfg.diffuse_shading == "irradiance":
-            e0 = FrameZeroIrradiance(*frame0, grid=cfg.irradiance_grid, env_shape=(cfg.env_height, cfg.env_width))
-            return IrradianceMaps(texture, e0, grey_gain=cfg.irradiance_gain in ("grey", "grey+global"),
-                                  colour_gain=cfg.irradiance_gain in ("global", "grey+global"), **kw)
-        return GuidedMaps(texture, **kw)
+        return GuidedMaps(srgb_to_linear(np.asarray(init_texture, dtype=np.float32)[..., :3]), size=cfg.texel_size,
+                          gain_grid=cfg.gain_grid, clusters=cfg.clusters, min_roughness=cfg.min_roughness,
+                          init_roughness=cfg.init_roughness, init_metallic=cfg.init_metallic, seed=cfg.seed,
+                          smoothing=cfg.texture_smoothing)
     init = dict(min_roughness=cfg.min_roughness, init_diffuse=cfg.init_diffuse, init_roughness=cfg.init_roughness,
                 init_metallic=cfg.init_metallic)
     if cfg.maps == "decoder":
@@ -171,7 +164,7 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
     slope_t = srgb_slope(rgb_t)
 
     torch.manual_seed(cfg.seed)
-    model = _build_model(cfg, init_texture, (verts[0], triangles, uvs, camera)).to(dev)
+    model = _build_model(cfg, init_texture).to(dev)
     if cfg.env_levels > 1:
         env = PyramidEnvironmentMap(cfg.env_height, cfg.env_width, cfg.env_levels, cfg.env_init, cfg.env_min).to(dev)
     else:
@@ -213,8 +206,8 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
             frames = np.sort(np.random.default_rng(cfg.seed * 100_003 + epoch).choice(n_frames, batch, replace=False))
         else:
             frames = np.arange(n_frames)
+        maps = model()
         env_eff = env(w)
-        maps = model(env_eff)   # IrradianceMaps: the diffuse depends on the env map too
         leaves = {k: v.detach().requires_grad_(True) for k, v in maps.items()}
         env_leaf = env_eff.detach().requires_grad_(True)
         epoch_loss = 0.0
@@ -276,8 +269,8 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
     if checkpoint is not None:
         checkpoint(final_state)
     with torch.no_grad():
+        maps = model()
         env_final = env(colour_weight(cfg.epochs - 1, cfg.epochs, cfg.grey_fraction, cfg.blend_fraction))
-        maps = model(env_final)
         out_shape = (cfg.env_output_height, cfg.env_output_width)
         if tuple(env_final.shape[:2]) != out_shape:
             env_final = Fnn.interpolate(env_final.permute(2, 0, 1)[None], size=out_shape, mode="bilinear",
