@@ -74,10 +74,14 @@ def test_evidence_marks_clusters_the_images_cannot_see():
     assert undetermined_note([dict(ev[0], determined=True)]) is None
 
 
-def test_guided_fit_beats_the_texture_only_baseline_on_a_tiny_satin(tmp_path):
+@pytest.mark.parametrize("divide, epochs, margin", [("gain", 40, 0.2), ("irradiance", 80, 0.15)])
+def test_guided_fit_beats_the_texture_only_baseline_on_a_tiny_satin(tmp_path, divide, epochs, margin):
     """End to end on a tiny ground-truth scene: a satin's low roughness is found (the texture-only
     baseline says 1) and no metal is invented. The 'phase-1 texture' is the true base colour with a
-    shading gradient and noise baked in (running phase 1 here would cost more than the whole test)."""
+    shading gradient and noise baked in (running phase 1 here would cost more than the whole test).
+    The irradiance-divided diffuse (the profiles' default) finds a satin's gloss more slowly and less
+    well (BENCHMARKS "A physically divided diffuse, adopted": satin with saft's motion 0.395 -> 0.542): at
+    40 epochs its metallic is still 0.06-0.10, at 80 its roughness MAE is 0.20 below the baseline's."""
     from saft.appearance.config import cpu_profile
     from saft.appearance.fit import fit_appearance
     from saft.evaluate.appearance import map_metrics, read_appearance_ground_truth, texture_baseline, uv_coverage
@@ -92,7 +96,8 @@ def test_guided_fit_beats_the_texture_only_baseline_on_a_tiny_satin(tmp_path):
     shading = np.linspace(0.5, 0.8, 128, dtype=np.float32)[:, None, None]
     texture = np.clip((gt.base_color * shading) ** (1 / 2.2) + 0.02 * rng.standard_normal(gt.base_color.shape), 0, 1)
     cfg = cpu_profile()
-    cfg.epochs, cfg.frames_per_epoch, cfg.texel_size, cfg.image_scale = 40, 2, 128, 1.0
+    cfg.epochs, cfg.frames_per_epoch, cfg.texel_size, cfg.image_scale = epochs, 2, 128, 1.0
+    cfg.diffuse_shading = divide
     rgb, mask = scene.frames.load()
     res = fit_appearance(verts, scene.template.triangles, scene.template.uvs, scene.camera, rgb, mask, cfg,
                          init_texture=texture.astype(np.float32))
@@ -100,12 +105,13 @@ def test_guided_fit_beats_the_texture_only_baseline_on_a_tiny_satin(tmp_path):
     fitted = map_metrics(res.diffuse, res.roughness, res.metallic, gt, cover)
     baseline = map_metrics(*texture_baseline(texture), gt, cover)
     print(fitted, baseline)
-    assert fitted["roughness_mae"] < baseline["roughness_mae"] - 0.2
+    assert fitted["roughness_mae"] < baseline["roughness_mae"] - margin
     assert fitted["metallic_mae"] <= 0.05
     assert fitted["diffuse_psnr_db"] > baseline["diffuse_psnr_db"] - 1.0
 
 
-def test_guided_fit_checkpoints_and_resumes():
+@pytest.mark.parametrize("shading", ["gain", "irradiance"])
+def test_guided_fit_checkpoints_and_resumes(shading):
     from saft.appearance.config import cpu_profile
     from saft.appearance.fit import fit_appearance
     from saft.appearance.params import linear_to_srgb
@@ -115,10 +121,12 @@ def test_guided_fit_checkpoints_and_resumes():
     texture = linear_to_srgb(torch.as_tensor(sc.diffuse)).numpy()
     cfg = cpu_profile()
     cfg.epochs, cfg.frames_per_epoch, cfg.texel_size, cfg.image_scale, cfg.checkpoint_every = 4, 1, 64, 1.0, 2
+    cfg.diffuse_shading = shading
     states = []
     res = fit_appearance(sc.vertices, sc.triangles, sc.uvs, sc.camera, sc.rgb, sc.mask, cfg, checkpoint=states.append,
                          init_texture=texture)
     assert [s["epoch"] for s in states] == [2, 4] and res.materials is not None
+    assert states[0]["model"]["gain"].shape[1] == (1 if shading == "irradiance" else 3)   # a grey gain
     resumed = fit_appearance(sc.vertices, sc.triangles, sc.uvs, sc.camera, sc.rgb, sc.mask, cfg,
                              resume_state=states[0], init_texture=texture)
     assert resumed.losses[:2] == states[0]["losses"] and len(resumed.losses) == 4

@@ -24,6 +24,10 @@ class AppearanceConfig:
     # texture times a coarse log-gain grid; roughness/metallic constant per colour cluster: appearance.guided)
     maps: Literal["decoder", "texels", "guided"] = "decoder"
     gain_grid: int = 16                  # maps="guided": side of the diffuse log-gain grid
+    # maps="guided": what divides the frame-0 shading out of the texture: "gain" (a free colour log-gain
+    # grid) or "irradiance" (π·T / E0, E0 the frame-0 irradiance from the fitted env map, times a grey
+    # log-gain grid: appearance.irradiance; the profiles' choice, BENCHMARKS "A physically divided diffuse")
+    diffuse_shading: Literal["gain", "irradiance"] = "gain"
     clusters: int = 6                    # maps="guided": material clusters (k-means on the texture's colours)
     texture_smoothing: float = 0.0       # maps="guided": σ (texels) of the blur inside each cluster
     # maps="guided": a frame teaches the per-cluster detail share only if it repeats at least this fraction
@@ -92,6 +96,8 @@ class AppearanceConfig:
             bad("lr_final_factor", "must lie in (0, 1]")
         if self.maps not in ("decoder", "texels", "guided"):
             bad("maps", "must be 'decoder', 'texels' or 'guided'")
+        if self.diffuse_shading not in ("gain", "irradiance"):
+            bad("diffuse_shading", "must be 'gain' or 'irradiance'")
         if self.gain_grid < 1 or self.clusters < 1:
             bad("clusters", "gain_grid and clusters must be >= 1")
         if self.env_levels < 1 or (self.env_height >> (self.env_levels - 1)) < 1:
@@ -129,12 +135,12 @@ def paper_profile() -> AppearanceConfig:
 
 # The parametrisation and priors chosen on the appearance benchmark's ground-truth metrics (issue 28;
 # benchmarks/bench_appearance.py, BENCHMARKS.md "Appearance against ground truth"), shared by the CPU and
-# CUDA profiles: maps from the phase-1 texture (blurred inside colour clusters, shading divided out by an
-# 8×8 gain grid, roughness / metallic per cluster), metallic sparsity, the per-cluster evidence test, a
+# CUDA profiles: maps from the phase-1 texture (blurred inside colour clusters, divided by its frame-0
+# irradiance under the fitted env map times a grey 8×8 gain grid, roughness / metallic per cluster), metallic sparsity, the per-cluster evidence test, a
 # log-radiance pyramid env map (64×128 over 5 levels), learning rates decaying to a tenth; the detail share
 # learnt only from the frames whose motion lines the texture's weave up (detail_trust).
 GUIDED = dict(maps="guided", texel_size=512, gain_grid=8, clusters=6, texture_smoothing=4.0, lambda_metallic_l1=0.01,
-              detail_trust=0.5,
+              detail_trust=0.5, diffuse_shading="irradiance",
               evidence_threshold=0.01, lr_texels=0.1, lr_final_factor=0.1, init_roughness=0.6, init_metallic=0.1,
               env_levels=5, lr_env=0.05, env_height=64, env_width=128)
 

@@ -27,7 +27,7 @@ def cluster_evidence(model, env: torch.Tensor, render: Callable, frames: list[in
     Clusters judged undetermined are set to matte in `model` (in place); determined ones whose metallic
     is below `dielectric_below` are set to metallic 0 (a few per cent of metal is noise, not a material).
     """
-    maps = model()
+    maps = model(env)
     vals = {k: v.detach().clone() for k, v in model.cluster_values().items()}
 
     def total(rough, metal) -> float:

@@ -17,6 +17,7 @@ from saft.appearance.config import AppearanceConfig
 from saft.appearance.detail import untrusted_detail_frames
 from saft.appearance.evidence import cluster_evidence, undetermined_note
 from saft.appearance.guided import GuidedMaps
+from saft.appearance.irradiance import FrameZeroIrradiance, IrradianceMaps
 from saft.appearance.mitsuba_backend import load_mitsuba
 from saft.appearance.params import (EnvironmentMap, PyramidEnvironmentMap, TexelMaps, TextureDecoder, colour_weight,
                                     env_amplitude, env_smoothness, linear_to_srgb, srgb_to_linear)
@@ -51,14 +52,19 @@ class AppearanceResult:
     detail_frames_left_out: list[int] | None = None
 
 
-def _build_model(cfg: AppearanceConfig, init_texture) -> torch.nn.Module:
+def _build_model(cfg: AppearanceConfig, init_texture, frame0=None) -> torch.nn.Module:
+    """frame0: (vertices (V, 3), triangles, uvs, camera) of frame 0, for diffuse_shading="irradiance"."""
     if cfg.maps == "guided":
         if init_texture is None:
             raise SaftInputError("appearance.maps", "'guided' maps start from the phase-1 texture; none was given")
-        return GuidedMaps(srgb_to_linear(np.asarray(init_texture, dtype=np.float32)[..., :3]), size=cfg.texel_size,
-                          gain_grid=cfg.gain_grid, clusters=cfg.clusters, min_roughness=cfg.min_roughness,
-                          init_roughness=cfg.init_roughness, init_metallic=cfg.init_metallic, seed=cfg.seed,
-                          smoothing=cfg.texture_smoothing)
+        kw = dict(size=cfg.texel_size, gain_grid=cfg.gain_grid, clusters=cfg.clusters, min_roughness=cfg.min_roughness,
+                  init_roughness=cfg.init_roughness, init_metallic=cfg.init_metallic, seed=cfg.seed,
+                  smoothing=cfg.texture_smoothing)
+        texture = srgb_to_linear(np.asarray(init_texture, dtype=np.float32)[..., :3])
+        if cfg.diffuse_shading == "irradiance":
+            e0 = FrameZeroIrradiance(*frame0, env_shape=(cfg.env_height, cfg.env_width))
+            return IrradianceMaps(texture, e0, **kw)
+        return GuidedMaps(texture, **kw)
     init = dict(min_roughness=cfg.min_roughness, init_diffuse=cfg.init_diffuse, init_roughness=cfg.init_roughness,
                 init_metallic=cfg.init_metallic)
     if cfg.maps == "decoder":
@@ -167,7 +173,7 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
     slope_t = srgb_slope(rgb_t)
 
     torch.manual_seed(cfg.seed)
-    model = _build_model(cfg, init_texture).to(dev)
+    model = _build_model(cfg, init_texture, (verts[0], triangles, uvs, camera)).to(dev)
     untrusted = set()   # frames that do not teach the detail share (appearance.detail)
     if isinstance(model, GuidedMaps) and cfg.detail_trust > 0:
         untrusted = set(untrusted_detail_frames(model, verts, triangles, uvs, camera, rgb, mask, cfg.texture_smoothing,
@@ -213,8 +219,8 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
             frames = np.sort(np.random.default_rng(cfg.seed * 100_003 + epoch).choice(n_frames, batch, replace=False))
         else:
             frames = np.arange(n_frames)
-        maps = model()
         env_eff = env(w)
+        maps = model(env_eff)   # IrradianceMaps: the diffuse depends on the env map too
         leaves = {k: v.detach().requires_grad_(True) for k, v in maps.items()}
         env_leaf = env_eff.detach().requires_grad_(True)
         epoch_loss = 0.0
@@ -285,8 +291,8 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
     if checkpoint is not None:
         checkpoint(final_state)
     with torch.no_grad():
-        maps = model()
         env_final = env(colour_weight(cfg.epochs - 1, cfg.epochs, cfg.grey_fraction, cfg.blend_fraction))
+        maps = model(env_final)
         out_shape = (cfg.env_output_height, cfg.env_output_width)
         if tuple(env_final.shape[:2]) != out_shape:
             env_final = Fnn.interpolate(env_final.permute(2, 0, 1)[None], size=out_shape, mode="bilinear",

@@ -131,16 +131,22 @@ class GuidedMaps(nn.Module):
         return {"roughness": torch.sigmoid(self.rough_logit).clamp_min(self.min_roughness),
                 "metallic": torch.sigmoid(self.metal_logit)}
 
-    def forward(self) -> dict[str, torch.Tensor]:
+    def detailed_texture(self) -> torch.Tensor:
+        """(S, S, 3) T_s + a·(T − T_s): the blurred texture with each cluster's learnt share of its detail."""
+        detail = torch.einsum("k,khw->hw", torch.sigmoid(self.detail_logit), self.members)
+        return self.texture + self.detail * detail[..., None]
+
+    def material_maps(self) -> dict[str, torch.Tensor]:
+        """Roughness and metallic (S, S), constant per cluster."""
+        vals = self.cluster_values()
+        return {"roughness": torch.einsum("k,khw->hw", vals["roughness"], self.members),
+                "metallic": torch.einsum("k,khw->hw", vals["metallic"], self.members)}
+
+    def forward(self, env: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """The maps; env (the env map the renderer gets) is not used here (IrradianceMaps divides by it)."""
         s = self.size
         gain = Fnn.interpolate(self.gain, size=(s, s), mode="bilinear", align_corners=False)[0].permute(1, 2, 0)
-        vals = self.cluster_values()
-        detail = torch.einsum("k,khw->hw", torch.sigmoid(self.detail_logit), self.members)
-        return {
-            "diffuse": ((self.texture + self.detail * detail[..., None]) * torch.exp(gain)).clamp(0.0, 1.0),
-            "roughness": torch.einsum("k,khw->hw", vals["roughness"], self.members),
-            "metallic": torch.einsum("k,khw->hw", vals["metallic"], self.members),
-        }
+        return {"diffuse": (self.detailed_texture() * torch.exp(gain)).clamp(0.0, 1.0), **self.material_maps()}
 
     @torch.no_grad()
     def set_matte(self, k: int) -> None:

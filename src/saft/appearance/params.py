@@ -107,7 +107,8 @@ class TextureDecoder(nn.Module):
     def size(self) -> int:
         return tiled_size(int(round(math.sqrt(self.num_tiles))), self.tile_size, self.overlap)
 
-    def forward(self) -> dict[str, torch.Tensor]:
+    def forward(self, env: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """The maps (env: unused; every map model takes the env map, appearance.irradiance needs it)."""
         h = self.head(self.body(self.latent))  # (1, 5·n, T, T)
         tiles = h.reshape(self.num_tiles, 5, self.tile_size, self.tile_size)
         return _split_maps(blend_tiles(tiles, self.overlap), self.min_roughness)
@@ -127,7 +128,7 @@ class TexelMaps(nn.Module):
     def size(self) -> int:
         return int(self.logits.shape[-1])
 
-    def forward(self) -> dict[str, torch.Tensor]:
+    def forward(self, env: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         return _split_maps(self.logits, self.min_roughness)
 
 
