@@ -99,7 +99,7 @@ def _linear_weights(x: np.ndarray, n: int, periodic: bool) -> np.ndarray:
 
 
 def irradiance_matrix(normals: np.ndarray, height: int, width: int, oversample: int = 2,
-                      chunk: int = 256) -> torch.Tensor:
+                      chunk: int = 64) -> torch.Tensor:
     """(N, height·width) float32 M with E(n_k) = M[k] @ env.reshape(-1, 3) for unit normals (N, 3):
     ∫ w_p(ω) max(0, n·ω) dω by the midpoint rule on oversample·(height − 1) × oversample·width cells
     (module docstring: Mitsuba's lat-long lookup)."""
@@ -113,12 +113,12 @@ def irradiance_matrix(normals: np.ndarray, height: int, width: int, oversample: 
     d_t = torch.as_tensor(d)
     dw = torch.as_tensor(d_omega)
     n_t = torch.as_tensor(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
-    out = []
+    out = torch.empty(len(n_t), height * width, dtype=torch.float32)   # float64 only chunk by chunk
     for s in range(0, len(n_t), chunk):
         c = (n_t[s:s + chunk] @ d_t.T).clamp_min(0.0) * dw                   # (n, nt·nu)
         c = c.reshape(-1, nt, nu) @ w_u                                        # (n, nt, W)
-        out.append(torch.einsum("nah,naw->nhw", w_theta.expand(len(c), -1, -1), c).reshape(len(c), -1))
-    return torch.cat(out).to(torch.float32)
+        out[s:s + len(c)] = torch.einsum("nah,naw->nhw", w_theta.expand(len(c), -1, -1), c).reshape(len(c), -1)
+    return out
 
 
 # E0's texel grid: the shading varies at the mesh's scale (R1's 32×32 template: 2 texels per quad). Not
