@@ -1,5 +1,6 @@
-"""The frame-0 irradiance of appearance.irradiance: the UV rasterisation, the texel normals, the env map's
-direction convention and the cosine integral, checked against Mitsuba's own rendering of a white patch."""
+"""The frame-0 irradiance of appearance.irradiance: the texel normals (the UV rasterisation is
+appearance.detail's, tested there), the env map's direction convention and the cosine integral, checked
+against Mitsuba's own rendering of a white patch."""
 
 import math
 
@@ -8,8 +9,7 @@ import pytest
 import torch
 
 from saft.appearance.irradiance import (FrameZeroIrradiance, IrradianceMaps, env_direction, irradiance_matrix,
-                                        texel_normals, uv_raster)
-from saft.evaluate.appearance import uv_coverage
+                                        texel_normals)
 from saft.scene.camera import look_at
 
 
@@ -26,21 +26,6 @@ def _grid(n=5, lo=0.1, hi=0.8):
             a = i * n + j
             tris += [[a, a + 1, a + n + 1], [a, a + n + 1, a + n]]
     return verts, np.array(tris[:-1]), uvs
-
-
-def test_uv_raster_covers_as_the_loop_and_interpolates_exactly():
-    verts, tris, uvs = _grid()
-    size = 61   # odd: no texel centre lies exactly on a UV edge of this grid
-    tri_id, bary = uv_raster(tris, uvs, size)
-    assert np.array_equal(tri_id >= 0, uv_coverage(tris, uvs, size))
-    assert 0.3 < (tri_id >= 0).mean() < 0.5   # the [0.1, 0.8]² square minus a triangle
-    covered = tri_id >= 0
-    # the texel centres, interpolated back from the corners' UVs (a linear function: exact)
-    uv_back = (bary[..., None] * uvs[tris[np.maximum(tri_id, 0)]]).sum(-2)
-    ii, jj = np.mgrid[0:size, 0:size]
-    assert np.abs(uv_back[..., 0] - (jj + 0.5) / size)[covered].max() < 1e-5
-    assert np.abs(uv_back[..., 1] - (1 - (ii + 0.5) / size))[covered].max() < 1e-5
-    assert (bary[covered] >= -1e-6).all() and np.allclose(bary[covered].sum(-1), 1.0)
 
 
 def test_texel_normals_face_the_camera_and_fill_the_empty_texels():

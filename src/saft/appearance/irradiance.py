@@ -29,27 +29,10 @@ import torch.nn.functional as Fnn
 from scipy.ndimage import distance_transform_edt
 from torch import nn
 
+from saft.appearance.detail import texel_triangles
 from saft.appearance.guided import GuidedMaps
-from saft.render import interpolate, rasterize
 from saft.scene.camera import Camera
 from saft.scene.mesh import vertex_normals
-
-
-def uv_raster(triangles, uvs, size: int) -> tuple[np.ndarray, np.ndarray]:
-    """Rasterise the UV layout on a size×size texel grid (row 0 = top, v = 1; texel centres at
-    (j + ½)/size, 1 − (i + ½)/size). Returns the triangle index (size, size) int64 (−1 where no triangle
-    covers the texel centre) and the barycentric weights (size, size, 3) of the triangle's three corners."""
-    uv = torch.as_tensor(np.asarray(uvs, dtype=np.float32))
-    tri = torch.as_tensor(np.asarray(triangles, dtype=np.int32))
-    # saft.render's clip space: y_ndc = −1 at the TOP row, so v = 1 → −1; w = 1 (no perspective)
-    pos = torch.stack([2 * uv[:, 0] - 1, 1 - 2 * uv[:, 1], torch.full_like(uv[:, 0], 0.5),
-                       torch.ones_like(uv[:, 0])], -1)[None]
-    rast = rasterize(pos, tri, (size, size))[0]
-    tri_id = rast[..., 3].round().long().numpy() - 1
-    a, b = rast[..., 0].numpy(), rast[..., 1].numpy()
-    bary = np.stack([a, b, 1.0 - a - b], -1)   # interpolate's u·a0 + v·a1 + (1 − u − v)·a2
-    bary[tri_id < 0] = 0.0
-    return tri_id.astype(np.int64), bary.astype(np.float64)
 
 
 def fill_nearest(values: np.ndarray, covered: np.ndarray) -> np.ndarray:
@@ -66,7 +49,7 @@ def texel_normals(vertices, triangles, uvs, camera_centre, size: int) -> np.ndar
     seen from its back is lit on its back), texels outside the UV layout from their nearest covered one."""
     v = np.asarray(vertices, dtype=np.float64)
     t = np.asarray(triangles, dtype=np.int64)
-    tri_id, bary = uv_raster(t, uvs, size)
+    tri_id, bary = texel_triangles(t, uvs, size)
     covered = tri_id >= 0
     corners = t[np.maximum(tri_id, 0)]                              # (S, S, 3) vertex ids
     n = (bary[..., None] * vertex_normals(v, t)[corners]).sum(-2)
