@@ -137,3 +137,14 @@ def resize_images(images, height: int, width: int):
         x = F.interpolate(x, size=(height, width), mode="bilinear", align_corners=False)
     x = x.permute(0, 2, 3, 1).contiguous()
     return x[..., 0] if images.dim() == 3 else x
+
+
+def bilinear_sample(image: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Sample an (H, W) or (H, W, C) array at float pixel positions (P, 2) = (u, v); clamped at the border."""
+    from scipy.ndimage import map_coordinates
+
+    coords = points[:, ::-1].T                                     # (row, column) for map_coordinates
+    if image.ndim == 2:
+        return map_coordinates(image, coords, order=1, mode="nearest")
+    return np.stack([map_coordinates(image[..., c], coords, order=1, mode="nearest")
+                     for c in range(image.shape[2])], axis=1)

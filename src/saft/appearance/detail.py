@@ -33,6 +33,7 @@ import numpy as np
 
 from saft.appearance.guided import smooth_within_clusters
 from saft.appearance.params import srgb_to_linear
+from saft.io_utils import bilinear_sample
 from saft.scene.camera import Camera
 
 
@@ -62,19 +63,6 @@ def texel_triangles(triangles, uvs, size: int) -> tuple[np.ndarray, np.ndarray]:
     return tri_of, bary
 
 
-def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """img (H, W, C) at pixel coordinates (x = column, y = row; centres at integers), clamped to the image."""
-    H, W = img.shape[:2]
-    x = np.clip(x, 0.0, W - 1.0)
-    y = np.clip(y, 0.0, H - 1.0)
-    x0 = np.minimum(np.floor(x).astype(int), max(W - 2, 0))
-    y0 = np.minimum(np.floor(y).astype(int), max(H - 2, 0))
-    x1, y1 = np.minimum(x0 + 1, W - 1), np.minimum(y0 + 1, H - 1)
-    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-    return (img[y0, x0] * (1 - fx) * (1 - fy) + img[y0, x1] * fx * (1 - fy)
-            + img[y1, x0] * (1 - fx) * fy + img[y1, x1] * fx * fy)
-
-
 def project_to_texture(vertices, triangles, tri_of: np.ndarray, bary: np.ndarray, camera: Camera,
                        image: np.ndarray, mask: np.ndarray, depth_tol: float = 0.005,
                        min_mask: float = 0.99) -> tuple[np.ndarray, np.ndarray]:
@@ -102,9 +90,9 @@ def project_to_texture(vertices, triangles, tri_of: np.ndarray, bary: np.ndarray
     np.minimum.at(zbuf, key[on], z[on])
     seen = on.copy()
     seen[on] = z[on] <= zbuf[key[on]] * (1.0 + depth_tol)
-    seen &= _bilinear(np.asarray(mask, dtype=np.float64)[..., None], px[:, 0], px[:, 1])[:, 0] >= min_mask
+    seen &= bilinear_sample(np.asarray(mask, dtype=np.float64), px) >= min_mask
     values = np.zeros((S, S, image.shape[2]))
-    values[inside] = _bilinear(np.asarray(image, dtype=np.float64), px[:, 0], px[:, 1])
+    values[inside] = bilinear_sample(np.asarray(image, dtype=np.float64), px)
     valid = np.zeros((S, S), bool)
     valid[inside] = seen
     return values, valid

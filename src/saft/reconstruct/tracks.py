@@ -46,8 +46,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from scipy.ndimage import map_coordinates, uniform_filter
+from scipy.ndimage import uniform_filter
 
+from saft.io_utils import bilinear_sample
 from saft.scene.camera import Camera
 
 
@@ -67,15 +68,6 @@ def to_gray_u8(rgb: np.ndarray) -> np.ndarray:
     """(H, W, 3) float sRGB in [0, 1] → (H, W) uint8 luma (Rec. 601 weights)."""
     gray = rgb[..., 0] * 0.299 + rgb[..., 1] * 0.587 + rgb[..., 2] * 0.114
     return np.clip(gray * 255.0 + 0.5, 0, 255).astype(np.uint8)
-
-
-def bilinear_sample(image: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Sample an (H, W) or (H, W, C) array at float pixel positions (P, 2) = (u, v); clamped at the border."""
-    coords = points[:, ::-1].T                                     # (row, column) for map_coordinates
-    if image.ndim == 2:
-        return map_coordinates(image, coords, order=1, mode="nearest")
-    return np.stack([map_coordinates(image[..., c], coords, order=1, mode="nearest")
-                     for c in range(image.shape[2])], axis=1)
 
 
 def dense_flow(gray0: np.ndarray, gray1: np.ndarray) -> np.ndarray:
