@@ -144,8 +144,11 @@ def untrusted_detail_frames(model, vertices, triangles, uvs, camera: Camera, rgb
     frames 1 and 2; none when that reference is below FLOOR or the video has fewer than 3 frames."""
     if len(vertices) < 3 or trust <= 0:
         return []
-    R = detail_repeat_per_frame(model, vertices, triangles, uvs, camera, rgb_srgb, mask, sigma)
-    ref = float(np.mean(R[1:3]))
+    args = (model, vertices, triangles, uvs, camera, rgb_srgb, mask, sigma)
+    first = detail_repeat_per_frame(*args, frames=[1, 2])   # the reference first: the rest only if it counts
+    ref = float(np.mean(first[1:3]))
     if ref < FLOOR:
         return []
+    R = detail_repeat_per_frame(*args, frames=range(3, len(vertices)))
+    R[1:3] = first[1:3]
     return [int(f) for f in np.flatnonzero(R < trust * ref)]
