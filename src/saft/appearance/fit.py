@@ -174,10 +174,11 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
 
     torch.manual_seed(cfg.seed)
     model = _build_model(cfg, init_texture, (verts[0], triangles, uvs, camera)).to(dev)
-    untrusted = set()   # frames that do not teach the detail share (appearance.detail)
+    left_out = None   # the frames that do not teach the detail share (appearance.detail); None: not tested
     if isinstance(model, GuidedMaps) and cfg.detail_trust > 0:
-        untrusted = set(untrusted_detail_frames(model, verts, triangles, uvs, camera, rgb, mask, cfg.texture_smoothing,
-                                                cfg.detail_trust))
+        left_out = untrusted_detail_frames(model, verts, triangles, uvs, camera, rgb, mask, cfg.texture_smoothing,
+                                           cfg.detail_trust)
+    untrusted = set(left_out or ())
     if cfg.env_levels > 1:
         env = PyramidEnvironmentMap(cfg.env_height, cfg.env_width, cfg.env_levels, cfg.env_init, cfg.env_min).to(dev)
     else:
@@ -308,7 +309,7 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
         cpu_seconds=time.process_time() - c0,
         state=final_state,
         materials=evidence,
-        detail_frames_left_out=sorted(untrusted) if isinstance(model, GuidedMaps) and cfg.detail_trust > 0 else None,
+        detail_frames_left_out=left_out,
     )
 
 
