@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from saft.appearance.irradiance import env_direction
 from saft.appearance.params import linear_to_srgb, srgb_to_linear
 from saft.appearance.renderer import ClothRenderer
 from saft.evaluate.metrics import sample_surface
@@ -181,9 +182,7 @@ def sky_with_sun(height: int = 128, width: int = 256, sun=(-0.45, 0.65, 0.62)) -
     bright sun in direction `sun` (world frame; by default above, left and in front of the cloth, on the
     camera's side, so that it lights the cloth at a grazing angle and folds cast shading)."""
     th = (np.arange(height) + 0.5) / height * np.pi
-    phi = ((np.arange(width) + 0.5) / width * 2 - 1) * np.pi
-    TH, PH = np.meshgrid(th, phi, indexing="ij")
-    d = np.stack([-np.sin(TH) * np.sin(PH), np.cos(TH), np.sin(TH) * np.cos(PH)], -1)
+    d = env_direction(th[:, None], ((np.arange(width) + 0.5) / width)[None, :])
     up = d[..., 1:2]
     env = 0.06 + np.array([0.08, 0.12, 0.24]) * np.clip(up, 0, 1) + np.array([0.10, 0.07, 0.04]) * np.clip(-up, 0, 1)
     s = np.asarray(sun, dtype=np.float64) / np.linalg.norm(sun)

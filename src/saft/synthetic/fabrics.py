@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from saft.appearance.irradiance import env_direction
+
 FABRICS = {
     "cotton": "plain matte cotton",
     "print": "printed pattern on cotton, glossier ink",
@@ -102,10 +104,9 @@ def fabric_maps(kind: str, size: int = 512, seed: int = 0) -> tuple[np.ndarray, 
 
 
 def _directions(height: int, width: int) -> np.ndarray:
+    """(H, W, 3) world directions of the pixel centres (Mitsuba's lat-long convention: env_direction)."""
     th = (np.arange(height) + 0.5) / height * np.pi
-    phi = ((np.arange(width) + 0.5) / width * 2 - 1) * np.pi
-    TH, PH = np.meshgrid(th, phi, indexing="ij")
-    return np.stack([-np.sin(TH) * np.sin(PH), np.cos(TH), np.sin(TH) * np.cos(PH)], -1)
+    return env_direction(th[:, None], ((np.arange(width) + 0.5) / width)[None, :])
 
 
 def _lobe(d: np.ndarray, direction, colour, sharpness: float) -> np.ndarray:
