@@ -136,9 +136,10 @@ def paper_profile() -> AppearanceConfig:
 # The parametrisation and priors chosen on the appearance benchmark's ground-truth metrics (issue 28;
 # benchmarks/bench_appearance.py, BENCHMARKS.md "Appearance against ground truth"), shared by the CPU and
 # CUDA profiles: maps from the phase-1 texture (blurred inside colour clusters, divided by its frame-0
-# irradiance under the fitted env map times a grey 8×8 gain grid, roughness / metallic per cluster), metallic sparsity, the per-cluster evidence test, a
-# log-radiance pyramid env map (64×128 over 5 levels), learning rates decaying to a tenth; the detail share
-# learnt only from the frames whose motion lines the texture's weave up (detail_trust).
+# irradiance under the fitted env map times a grey 8×8 gain grid, roughness / metallic per cluster),
+# metallic sparsity, the per-cluster evidence test, a log-radiance pyramid env map (64×128 over 5 levels),
+# learning rates decaying to a tenth; the detail share learnt only from the frames whose motion lines the
+# texture's weave up (detail_trust).
 GUIDED = dict(maps="guided", texel_size=512, gain_grid=8, clusters=6, texture_smoothing=4.0, lambda_metallic_l1=0.01,
               detail_trust=0.5, diffuse_shading="irradiance",
               evidence_threshold=0.01, lr_texels=0.1, lr_final_factor=0.1, init_roughness=0.6, init_metallic=0.1,
