@@ -25,6 +25,7 @@ import torch
 from saft.physics import ClothTopology
 from saft.physics.cuda_graphs import ENV_GRAPHS
 from saft.physics.simulation import DENSE_SOLVERS
+from saft.physics.solver_choice import dense_variant
 
 # "all": the dense variants, "dense" that also refactorises every 25 substeps (R1 on the CPU, 50 frames fwd+bwd:
 # 5231 CG iterations with 1 factorisation without, 4115 with 8; 3431 / 16 every 12 substeps), then the Jacobi
@@ -37,9 +38,9 @@ SYNC_EVENTS = ("cudaStreamSynchronize", "cudaDeviceSynchronize", "cudaEventSynch
 
 
 def _solver_names(spec):
-    """A comma list of solver names; "all" stands for ALL; "<dense variant>:N[:M]" registers that variant with
-    refactor_after=N (and refactor_age=M) in simulation.DENSE_SOLVERS (this process only), e.g. dense:10,
-    dense:20:25."""
+    """A comma list of solver names; "all" stands for ALL; a dense variant with options is registered by
+    saft.physics.solver_choice.dense_variant (this process only), e.g. dense:20:25 (refactor_after 20,
+    refactor_age 25) or densebf16:block=3:f32=1."""
     names = []
     for name in spec.split(","):
         if name in names:
@@ -47,12 +48,11 @@ def _solver_names(spec):
         if name == "all":
             names += _solver_names(",".join(n for n in ALL if n not in names))
             continue
-        base, *opts = name.split(":")
-        if opts:
-            if base not in DENSE_SOLVERS or len(opts) > 2:
-                raise SystemExit(f"--solver {name}: not <dense solver>:N[:M] ({', '.join(DENSE_SOLVERS)})")
-            kw = dict(zip(("refactor_after", "refactor_age"), map(int, opts)))
-            DENSE_SOLVERS[name] = {**DENSE_SOLVERS[base], **kw}
+        if ":" in name:
+            try:
+                dense_variant(name)
+            except ValueError as exc:
+                raise SystemExit(f"--solver: {exc}") from None
         names.append(name)
     return names
 
@@ -175,7 +175,8 @@ def compare(args, load_case, run_once):
     for k, (mode, compile, name) in enumerate(itertools.product(modes, compiles, names)):
         if mode is not None:
             os.environ[ENV_GRAPHS] = mode
-        tag = (name.replace(":", "_", 1).replace(":", "_age") + ("_nographs" if mode == "0" else "")
+        short = name.replace(":", "_").replace("f32=1", "f32").replace("=", "") if "=" in name else name.replace(":", "_", 1).replace(":", "_age")
+        tag = (short + ("_nographs" if mode == "0" else "")
                + ("_compiled" if compile else ""))
         res = _run_solver(topo, name, tag, compile, args, ref, run_once, args.profile_all or k == 0)
         if res is not None and (best is None or res[0] < best[1]):

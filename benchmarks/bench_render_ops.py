@@ -7,7 +7,11 @@ int(), bool() of a tensor) and the ops whose output size depends on the data (no
 loss (rgb and coverage, as bench_render.py) adds its few ops to the count.
 
     python benchmarks/bench_render_ops.py [--sizes 240x320,700x800] [--by op|site] [--top 25]
-                                          [--time --runs 7 --threads 1,2] [--tex-grad 1|0]
+                                          [--time --runs 7 --threads 1,2] [--tex-grad 1|0] [--path fused|primitives]
+
+--path primitives counts the nvdiffrast backend's path (saft.render.reference.render_cloth_primitives) on the
+CPU: its four primitives are run by the torch backend but counted as one op each way (nvdiffrast launches
+a few kernels per primitive), so what is counted is saft's own code around them: its launches on CUDA.
 
 Last lines (machine-readable): render_ops_<H>x<W>=<forward>+<backward> and, with --time,
 render_cpu_ms_<H>x<W>_t<threads>=<median process-time ms>.
@@ -28,6 +32,7 @@ from torch.utils._python_dispatch import TorchDispatchMode
 
 from bench_render import R1, load_texture, r1_camera
 from saft.render import get_rasterizer, render_cloth
+from saft.render.reference import render_cloth_primitives
 from saft.scene.camera import Crop
 from saft.scene.mesh import read_obj
 
@@ -52,12 +57,16 @@ def camera_for(size: str):
 
 
 class _Count(TorchDispatchMode):
+    paused = False  # set while an opaque primitive runs (--path primitives)
+
     def __init__(self, by: str):
         super().__init__()
         self.by = by
         self.ops = collections.Counter()
 
     def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        if _Count.paused:
+            return func(*args, **(kwargs or {}))
         name = func.overloadpacket.__name__
         if name in ("index", "index_put", "index_put_") and any(
                 isinstance(i, torch.Tensor) and i.dtype == torch.bool for i in (args[1] or ())):
@@ -81,7 +90,83 @@ def _site() -> str:
     return f"autograd {type(node).__name__}" if node is not None else "?"
 
 
-def setup(size, device, tex_grad: bool = True):
+class _Opaque(torch.autograd.Function):
+    """One primitive of the torch backend, counted as one op forward and one backward ("<name> primitive")."""
+
+    @staticmethod
+    def forward(ctx, name, fn, *inputs):
+        with torch.enable_grad():
+            leaves = [x.detach().requires_grad_(x.requires_grad) if isinstance(x, torch.Tensor) else x
+                      for x in inputs]
+            _Count.paused = True
+            try:
+                out = fn(*leaves)
+            finally:
+                _Count.paused = False
+        outs = out if isinstance(out, tuple) else (out,)
+        ctx.name, ctx.leaves, ctx.outs, ctx.tuple = name, leaves, outs, isinstance(out, tuple)
+        _note(f"{name} primitive")
+        return tuple(o.detach() if isinstance(o, torch.Tensor) else o for o in outs)
+
+    @staticmethod
+    def backward(ctx, *grads):
+        pairs = [(o, g) for o, g in zip(ctx.outs, grads) if isinstance(o, torch.Tensor) and o.requires_grad
+                 and g is not None]
+        wrt = [x for x in ctx.leaves if isinstance(x, torch.Tensor) and x.requires_grad]
+        _Count.paused = True
+        try:
+            got = torch.autograd.grad([o for o, _ in pairs], wrt, [g for _, g in pairs], allow_unused=True) \
+                if pairs and wrt else [None] * len(wrt)
+        finally:
+            _Count.paused = False
+        _note(f"{ctx.name} primitive backward")
+        it = iter(got)
+        return (None, None) + tuple(next(it) if isinstance(x, torch.Tensor) and x.requires_grad else None
+                                    for x in ctx.leaves)
+
+
+_ACTIVE: list = []
+
+
+def _note(key: str):
+    if _ACTIVE:
+        _ACTIVE[-1].ops[key] += 1
+
+
+class _OpaquePrimitives:
+    """The torch backend's four primitives, each opaque to the counter (see --path primitives)."""
+
+    name = "primitives"
+
+    def __init__(self, device):
+        self.R = get_rasterizer("torch", device)
+
+    def render_cloth(self, *args):
+        return render_cloth_primitives(self, *args)
+
+    def _call(self, name, fn, *inputs):
+        out = _Opaque.apply(name, fn, *inputs)
+        return out if len(out) > 1 else out[0]
+
+    def rasterize(self, pos, tri, resolution, with_db=False):
+        return self._call("rasterize", lambda p: self.R.rasterize(p, tri, resolution, with_db=with_db), pos)
+
+    def interpolate(self, attr, rast, tri, rast_db=None, diff_attrs=None):
+        return self._call("interpolate", lambda a, r, d: self.R.interpolate(a, r, tri, rast_db=d,
+                                                                              diff_attrs=diff_attrs),
+                          attr, rast, rast_db)
+
+    def texture(self, tex, uv, uv_da=None, filter_mode="auto", boundary_mode="wrap", max_mip_level=None,
+                mask=None):
+        return self._call("texture", lambda t, u, d: self.R.texture(
+            t, u, d, filter_mode=filter_mode, boundary_mode=boundary_mode, max_mip_level=max_mip_level,
+            mask=mask), tex, uv, uv_da)
+
+    def antialias(self, color, rast, pos, tri):
+        return self._call("antialias", lambda c, r, p: self.R.antialias(c, r, p, tri), color, rast, pos)
+
+
+def setup(size, device, tex_grad: bool = True, path: str = "fused"):
     mesh = read_obj(R1 / "0_R1_quad.obj")
     cam = camera_for(size)
     v = torch.tensor(mesh.vertices, dtype=torch.float32, device=device, requires_grad=True)
@@ -89,7 +174,7 @@ def setup(size, device, tex_grad: bool = True):
     tri = torch.from_numpy(mesh.triangles).to(device)
     uvs = torch.from_numpy(mesh.uvs).float().to(device)
     target = torch.zeros(1, cam.height, cam.width, 3, device=device)
-    R = get_rasterizer("torch", device)
+    R = get_rasterizer("torch", device) if path == "fused" else _OpaquePrimitives(device)
 
     def forward():
         out = render_cloth(v, tri, uvs, tex, cam, rasterizer=R)
@@ -103,14 +188,17 @@ def setup(size, device, tex_grad: bool = True):
     return forward, step, v, tex
 
 
-def count(size, device, by, tex_grad=True):
-    forward, step, v, tex = setup(size, device, tex_grad)
+def count(size, device, by, tex_grad=True, path="fused"):
+    forward, step, v, tex = setup(size, device, tex_grad, path)
     step()  # warm caches (topology, allocator)
     v.grad = tex.grad = None
     with _Count(by) as cf:
+        _ACTIVE.append(cf)
         loss = forward()
     with _Count(by) as cb:
+        _ACTIVE[-1] = cb
         loss.backward()
+    _ACTIVE.clear()
     return cf.ops, cb.ops
 
 
@@ -121,9 +209,9 @@ def split(ops):
     return launches, views, syncs
 
 
-def timed(size, device, threads, runs, tex_grad=True):
+def timed(size, device, threads, runs, tex_grad=True, path="fused"):
     torch.set_num_threads(threads)
-    _, step, _, _ = setup(size, device, tex_grad)
+    _, step, _, _ = setup(size, device, tex_grad, path)
     for _ in range(3):
         step()
     cpu = []
@@ -148,6 +236,9 @@ def main(argv=None) -> int:
     ap.add_argument("--tex-grad", type=int, choices=(0, 1), default=1,
                     help="1: gradients to the texture too (the texture phase, bench_render.py); 0: a fixed texture "
                          "without gradient (the shape phase: its mip pyramid is kept between renders)")
+    ap.add_argument("--path", choices=("fused", "primitives"), default="fused",
+                    help="fused: the torch backend's render_cloth; primitives: the nvdiffrast backend's code around "
+                         "its four primitives, each counted as one op")
     args = ap.parse_args(argv)
     if not (R1 / "0_R1_quad.obj").is_file():
         print(f"R1 template not found at {R1}", file=sys.stderr)
@@ -155,7 +246,7 @@ def main(argv=None) -> int:
     device = torch.device(args.device)
     lines = []
     for size in args.sizes.split(","):
-        fw, bw = count(size, device, args.by, bool(args.tex_grad))
+        fw, bw = count(size, device, args.by, bool(args.tex_grad), args.path)
         (lf, vf, sf), (lb, vb, sb) = split(fw), split(bw)
         print(f"== {size}: forward {lf} ops (+{vf} views), {sf} host syncs; backward {lb} ops (+{vb} views), "
               f"{sb} host syncs")
@@ -167,7 +258,7 @@ def main(argv=None) -> int:
         lines.append(f"render_syncs_{size}={sf}+{sb}")
         if args.time:
             for t in (int(x) for x in args.threads.split(",")):
-                med, best, flt = timed(size, device, t, args.runs, bool(args.tex_grad))
+                med, best, flt = timed(size, device, t, args.runs, bool(args.tex_grad), args.path)
                 print(f"   {size} threads={t}: CPU ms median {med:.2f}, min {best:.2f} ({args.runs} runs), "
                       f"{flt:.0f} page faults per step (first touches of memory the allocator got anew)",
                       flush=True)

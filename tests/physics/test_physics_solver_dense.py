@@ -52,6 +52,42 @@ def test_solves_to_the_tolerance_and_reuses_the_factor(precond):
     assert 1 < s.stats.iterations <= s.max_iter
 
 
+@pytest.mark.parametrize("precond", ["inv32", "invbf16"])
+def test_float32_factorisation_preconditions_as_well(precond):
+    """factor32: the inverse made from a float32 Cholesky factor; the solves still meet the float64 residual test,
+    in about the iterations of the float64 factor (the inverse is rounded to float32 or bfloat16 either way)."""
+    t, A0, b, _ = grid_system(n=8)
+    _, A1, _, A1m = grid_system(n=8, drift=2e-4)
+    its = []
+    for factor32 in (False, True):
+        s = _solver(t, precond=precond, tol=1e-10, factor32=factor32)
+        x1 = s.solve(_t(A1), _t(b), s.solve(_t(A0), _t(b))).numpy()
+        assert np.linalg.norm(A1m @ x1 - b) <= 1e-10 * np.linalg.norm(b)
+        assert s.stats.factorizations == 1 and s.stats.fallbacks == 0
+        its.append(s.stats.iterations)
+        if factor32:
+            assert s.F.dtype == (torch.float32 if precond == "inv32" else torch.bfloat16)
+    assert its[1] <= its[0] + 2, its
+
+
+def test_float32_factorisation_falls_back_to_float64_when_it_fails(monkeypatch):
+    """Where the float32 Cholesky reports failure, the float64 one is made instead (not the direct solve)."""
+    t, A0, b, Am = grid_system(n=6)
+    real = torch.linalg.cholesky_ex
+    dtypes = []
+
+    def fails_in_float32(A):
+        dtypes.append(A.dtype)
+        L, info = real(A)
+        return (L, torch.ones_like(info)) if A.dtype == torch.float32 else (L, info)
+
+    monkeypatch.setattr(torch.linalg, "cholesky_ex", fails_in_float32)
+    s = _solver(t, precond="inv32", tol=1e-10, factor32=True)
+    x = s.solve(_t(A0), _t(b)).numpy()
+    assert dtypes == [torch.float32, torch.float64]
+    assert np.linalg.norm(Am @ x - b) <= 1e-10 * np.linalg.norm(b)
+
+
 def test_refactorises_once_cg_needs_more_than_refactor_after():
     t, A0, b, _ = grid_system(n=8)
     _, A1, _, _ = grid_system(n=8, drift=2e-4)
@@ -226,3 +262,17 @@ def test_refactor_age_refreshes_an_old_factor():
     s.at_step(2, select=True)  # 2 is within 3 of the factor of substep 0 or 4: no new one
     s.solve(_t(A0), _t(b))
     assert s.stats.factorizations == 3
+
+
+def test_dense_variant_specs():
+    """SAFT_DENSE_SOLVER and bench_physics --solver take a dense solver with options: positional refactor_after
+    and refactor_age, or named; a malformed spec is a ValueError naming it."""
+    from saft.physics.solver_choice import dense_variant
+
+    assert dense_variant("dense") == "dense"
+    assert DENSE_SOLVERS[dense_variant("dense:20:25")] == dict(precond="inv32", refactor_after=20, refactor_age=25)
+    name = dense_variant("densebf16:block=3:f32=1:age=12")
+    assert DENSE_SOLVERS[name] == dict(precond="invbf16", block=3, factor32=True, refactor_age=12)
+    for bad in ("lu:1", "dense:x=1", "dense:age=soon"):
+        with pytest.raises(ValueError, match="dense"):
+            dense_variant(bad)

@@ -152,3 +152,28 @@ def test_the_light_is_recovered_from_images_of_a_turning_sheet():
         opt.step()
     # the component along the normals' plane of turning (y, z) is what the frames constrain
     assert torch.allclose(light.detach()[1:], true_light[1:], atol=0.05), light
+
+
+def test_reference_pipeline_interpolates_normals_only_when_read():
+    """The nvdiffrast backend's path (render_cloth_primitives) interpolates once per render; the normals image
+    costs a second interpolate on first read, and its gradient reaches the vertices."""
+    from saft.render.reference import render_cloth_primitives
+    from saft.render.torch.rasterizer import TorchRasterizer
+
+    class Counting(TorchRasterizer):
+        calls = 0
+
+        def interpolate(self, *args, **kwargs):
+            Counting.calls += 1
+            return super().interpolate(*args, **kwargs)
+
+    g = torch.Generator().manual_seed(2)
+    verts, tri, uv = _jittered_sheet(g)
+    verts.requires_grad_(True)
+    out = render_cloth_primitives(Counting(), verts, _clip(verts), tri, uv, torch.rand(8, 8, 3, generator=g),
+                                  24, 24, None)
+    assert Counting.calls == 1
+    covered = out.rast[..., 3] > 0
+    (out.normals[covered][:, 2] * torch.arange(int(covered.sum()))).sum().backward()
+    assert Counting.calls == 2
+    assert verts.grad.abs().sum() > 0

@@ -72,6 +72,7 @@ def test_nvdiffrast_and_torch_backends_agree():
     cov = same & (a.rast[..., 3] > 0)
     assert (a.rast[..., :3][cov] - b.rast[..., :3][cov]).abs().max() < 1e-4
     assert (a.depth[cov] - b.depth[cov]).abs().max() < 1e-4
+    assert (a.normals[cov] - b.normals[cov]).abs().max() < 1e-3   # made on demand by both backends
     # colours: within 0.02 inside the surface (the same triangle, no edge next to it); the pixels whose
     # triangle differs or that lie on an edge (antialiased, snapped) only count in the mean
     d = (a.rgb - b.rgb).abs().amax(-1)[0]

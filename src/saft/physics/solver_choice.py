@@ -22,8 +22,35 @@ DENSE_SOLVERS = {
 }
 SOLVERS = ("auto", "lu", "cholmod", "cg", *DENSE_SOLVERS)
 # For A/B runs of whole reconstructions on a GPU (benchmarks/gpu_check.sh): the dense variant "auto" takes off
-# the CPU, e.g. densebf16 (0.350 s against dense's 0.408 s for R1's template on an H100, not yet run on R1)
+# the CPU, e.g. densebf16 (0.350 s against dense's 0.408 s for R1's template on an H100), or a spec of
+# dense_variant, e.g. densebf16:f32=1:age=12
 ENV_DENSE_SOLVER = "SAFT_DENSE_SOLVER"
+_SPEC_KEYS = {"after": ("refactor_after", int), "age": ("refactor_age", int), "block": ("block", int),
+              "f32": ("factor32", lambda v: bool(int(v)))}
+
+
+def dense_variant(spec: str) -> str:
+    """A dense solver name, registered in DENSE_SOLVERS (this process) when it is a spec
+    "<dense solver>[:N[:M]][:key=value...]": N refactor_after, M refactor_age, or named: after=N, age=M,
+    block=B (CG iterations between host reads), f32=1 (float32 factorisations). ValueError when malformed."""
+    base, *opts = spec.split(":")
+    if base not in DENSE_SOLVERS or len(opts) > 4:
+        raise ValueError(f"{spec!r} is not <dense solver>[:N[:M]][:key=value] ({', '.join(DENSE_SOLVERS)}; keys "
+                         f"{', '.join(_SPEC_KEYS)})")
+    kw = {}
+    for pos, opt in enumerate(opts):
+        key, _, val = opt.rpartition("=")
+        key = key or ("after", "age")[min(pos, 1)]
+        if key not in _SPEC_KEYS:
+            raise ValueError(f"{spec!r}: unknown option {key!r} (keys {', '.join(_SPEC_KEYS)})")
+        field, conv = _SPEC_KEYS[key]
+        try:
+            kw[field] = conv(val)
+        except ValueError:
+            raise ValueError(f"{spec!r}: {key}={val!r} is not an integer") from None
+    if kw:
+        DENSE_SOLVERS[spec] = {**DENSE_SOLVERS[base], **kw}
+    return spec
 
 
 def solver_for(topology: ClothTopology, solver: str, tol: float, stats: SolveStats, compile: bool = False,
@@ -34,9 +61,10 @@ def solver_for(topology: ClothTopology, solver: str, tol: float, stats: SolveSta
         if topology.device.type == "cpu":
             solver = "lu"
         else:
-            solver = os.environ.get(ENV_DENSE_SOLVER, "dense")
-            if solver not in DENSE_SOLVERS:
-                raise ValueError(f"{ENV_DENSE_SOLVER}={solver!r} is not one of {', '.join(DENSE_SOLVERS)}")
+            try:
+                solver = dense_variant(os.environ.get(ENV_DENSE_SOLVER, "dense"))
+            except ValueError as exc:
+                raise ValueError(f"{ENV_DENSE_SOLVER}: {exc}") from None
     if solver in DENSE_SOLVERS:
         return DenseFactorSolver(topology.csr_indptr, topology.csr_indices, topology.device, tol=tol, stats=stats,
                                  compile=compile, cache=cache, step_offset=first_step, **DENSE_SOLVERS[solver])
@@ -55,4 +83,4 @@ def solver_for(topology: ClothTopology, solver: str, tol: float, stats: SolveSta
     raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
 
 
-__all__ = ["DENSE_SOLVERS", "ENV_DENSE_SOLVER", "SOLVERS", "solver_for"]
+__all__ = ["DENSE_SOLVERS", "ENV_DENSE_SOLVER", "SOLVERS", "dense_variant", "solver_for"]

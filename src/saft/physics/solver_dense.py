@@ -18,6 +18,9 @@ Preconditioners (``precond``):
   "invbf16" the same in bfloat16 (18.9 MB on R1: half the GEMV's memory traffic, float32's range, 3 digits;
            CG stays float64, so only the iteration count can change).
   "chol"   the Cholesky factor itself, applied by cholesky_solve (two triangular solves).
+``factor32``: factorise (Cholesky and inverse) in float32 instead of float64 (a fresh float64 factorisation
+where the float32 one fails): the inverse preconditioners only ("inv32", "invbf16"), which are rounded to
+float32 or bfloat16 anyway; CG stays float64.
 ``refactor_every_solve``: factorise every A (a direct solve; CG then converges in one or two iterations).
 ``refactor_age``: also factorise when the current factor was made more than that many substeps away. Off by
 default (the CPU's rule alone); R1 on the CPU, 50 frames fwd+bwd, 392 solves: 5231 CG iterations and 1
@@ -190,7 +193,7 @@ class DenseFactorSolver:
                  refactor_after: int = 20, precond: str = "inv32", refactor_every_solve: bool = False,
                  block: int = 2, graphs: bool | None = None, compile: bool = False,
                  stats: SolveStats | None = None, keep_factors_bytes: int = 1 << 30,
-                 refactor_age: int | None = None, cache=None, step_offset: int = 0):
+                 refactor_age: int | None = None, cache=None, step_offset: int = 0, factor32: bool = False):
         if precond not in PRECONDS:
             raise ValueError(f"precond must be one of {PRECONDS}, got {precond!r}")
         indptr = np.ascontiguousarray(indptr, dtype=np.int64)
@@ -207,6 +210,7 @@ class DenseFactorSolver:
         self.refactor_age = refactor_age
         self._made_at = None  # the substep of the current factor
         self.precond = precond
+        self.factor32 = bool(factor32) and precond in _PRECOND_DTYPE
         self.stats = stats if stats is not None else SolveStats()
         self.stats.extra.setdefault("checks", 0)  # host reads of the CG state
         self.F = None  # the current factor (inverse or Cholesky); None: none yet, or A was not SPD
@@ -255,7 +259,12 @@ class DenseFactorSolver:
         preconditioner), False otherwise (no factor)."""
         with record_function("saft.dense.factorize"):
             self.stats.factorizations += 1
-            L, info = torch.linalg.cholesky_ex(self._dense(data))
+            A = self._dense(data)
+            info = 1
+            if self.factor32:
+                L, info = torch.linalg.cholesky_ex(A.float())
+            if int(info) != 0:
+                L, info = torch.linalg.cholesky_ex(A)
             if int(info) != 0:
                 self.F = None
                 return False
