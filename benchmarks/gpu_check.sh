@@ -8,7 +8,8 @@
 #   r1          R1, texture and shape phases, --device auto: wall time and mean CD2 (set SAFT_PHYSICS_DEVICE
 #               to cpu or cuda to override auto's physics device for an A/B run); run right after nvdiffrast
 #   r1b         (not in the default steps) R1 with the perturbation of repeat 1, compiled kernels cached
-#   r1bf16      (not in the default steps) R1 with the bfloat16 inverse as the physics' preconditioner
+#   r1c         (not in the default steps) the same with the perturbation of repeat 2
+#   r1bf16      (not in the default steps) R1 with SAFT_DENSE_SOLVER=densebf16 (now auto's choice as well)
 #   profile     (not in the default steps) R1's first 10 frames, 10 final epochs, under torch.profiler: host and
 #               device time per part of the shape phase (bench_r1.py --profile)
 # Then a table, and one line per number (name=value). Each step has its own time limit, so a hung step
@@ -70,6 +71,8 @@ want render && step render 180 bash -c "$py benchmarks/bench_render.py --device 
                          $py benchmarks/bench_render.py --device cpu --backend torch --threads 8 --runs 5"
 want r1b && TORCHINDUCTOR_CACHE_DIR=$r1cache step r1b 300 $py benchmarks/bench_r1.py --device auto --first-repeat 1 \
                   --out /tmp/saft-gpu-r1b
+want r1c && TORCHINDUCTOR_CACHE_DIR=$r1cache step r1c 300 $py benchmarks/bench_r1.py --device auto --first-repeat 2 \
+                  --out /tmp/saft-gpu-r1c
 want r1bf16 && SAFT_DENSE_SOLVER=densebf16 TORCHINDUCTOR_CACHE_DIR=$r1cache step r1bf16 300 $py benchmarks/bench_r1.py \
                   --device auto --out /tmp/saft-gpu-r1bf16
 want profile && step profile 240 $py benchmarks/bench_r1.py --device auto --frames 10 --set shape.final_epochs=10 \

@@ -2,6 +2,7 @@
 code: linear solves, refactorisation, the fallbacks on indefinite matrices, and whole rollouts with their
 gradients against the CPU default (numba kernels + ReusedLUSolver). The CUDA test records the graphs."""
 
+import os
 import shutil
 import sys
 from pathlib import Path
@@ -242,7 +243,10 @@ def test_cuda_default_is_the_graphed_dense_solver_and_matches_the_cpu():
     for key in (("auto", "cuda"), ("densechol", "cuda")):
         _assert_close(out[key], out["lu", "cpu"])
     assert out["auto", "cuda"][2]["checks"] > 0  # the dense solver ran
-    works = [w for w in SD._WORK.values() if w.x.is_cuda and w.precond == "inv32"]
+    from saft.physics.solver_choice import CUDA_DEFAULT, dense_variant
+
+    precond = DENSE_SOLVERS[dense_variant(os.environ.get("SAFT_DENSE_SOLVER", CUDA_DEFAULT))]["precond"]
+    works = [w for w in SD._WORK.values() if w.x.is_cuda and w.precond == precond]
     assert works and all(w.run_block.graph is not None and w.setup.graph is not None for w in works)
     assert any(g.graph is not None for g in K._GRAPHS.values())
 
@@ -270,9 +274,10 @@ def test_dense_variant_specs():
     from saft.physics.solver_choice import dense_variant
 
     assert dense_variant("dense") == "dense"
-    assert DENSE_SOLVERS[dense_variant("dense:20:25")] == dict(precond="inv32", refactor_after=20, refactor_age=25)
-    name = dense_variant("densebf16:block=3:f32=1:age=12")
-    assert DENSE_SOLVERS[name] == dict(precond="invbf16", block=3, factor32=True, refactor_age=12)
+    assert DENSE_SOLVERS[dense_variant("dense:20:25")] == dict(precond="inv32", factor32=True, refactor_after=20,
+                                                                 refactor_age=25)
+    name = dense_variant("densebf16:block=3:f32=0:age=12")
+    assert DENSE_SOLVERS[name] == dict(precond="invbf16", block=3, factor32=False, refactor_age=12)
     for bad in ("lu:1", "dense:x=1", "dense:age=soon"):
         with pytest.raises(ValueError, match="dense"):
             dense_variant(bad)

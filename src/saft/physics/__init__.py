@@ -40,9 +40,10 @@ becomes indefinite after a few mm of compression); "exact" uses the true Hessian
 Solvers: CPU - CG preconditioned by a reused incomplete LU factorisation (SuperLU's ILU, "lu", the default
 whatever is installed), refactorised when CG needs more than 15 iterations; the opt-in "cholmod" uses a
 CHOLMOD Cholesky factor instead (scikit-sparse; its numbers differ within the tolerance); other devices -
-"dense": CG preconditioned by the float32 inverse of a reused dense Cholesky factor (cuSOLVER), in torch,
-with the set-up, the CG blocks and the element kernels recorded as CUDA graphs (solver_dense, cuda_graphs;
-"dense64", "densechol", "direct" and the old Jacobi CG "cg" stay selectable). The CPU default is
+"densebf16": CG preconditioned by the bfloat16 inverse of a reused dense float32 Cholesky factor (cuSOLVER), in
+torch, with the set-up, the CG blocks and the element kernels recorded as CUDA graphs (solver_dense,
+cuda_graphs; "dense" (a float32 inverse), "dense64", "densechol", "direct" and the old Jacobi CG "cg" stay
+selectable). The CPU default is
 deterministic: the same bits on every run and with any torch thread count.
 """
 

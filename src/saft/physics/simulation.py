@@ -398,12 +398,12 @@ def rollout(
     pinned: vertex indices held exactly; at x0 (pinned_positions None) or at ``pinned_positions``
     (num_frames, P, 3), linearly interpolated within a frame's substeps (targets get no gradient).
     hessian: "projected" (PSD element Hessians, default) or "exact" (true Hessian, may be indefinite).
-    solver: "auto" ("lu" on CPU, whatever is installed; "dense" on other devices), "lu" (CG preconditioned
+    solver: "auto" ("lu" on CPU, whatever is installed; "densebf16" on other devices), "lu" (CG preconditioned
     by a reused incomplete LU, SuperLU), "cholmod" (opt-in: CG preconditioned by a CHOLMOD Cholesky factor,
     needs scikit-sparse; non-SPD falls back to LU), "cg" (Jacobi-preconditioned CG in torch), or, in torch on
-    any device, CG preconditioned by a reused dense Cholesky factor (solver_dense): "dense" (its inverse in
-    float32), "dense64" (the inverse in float64), "densechol" (the factor's triangular solves) or "direct"
-    (a fresh factor every solve).
+    any device, CG preconditioned by a reused dense Cholesky factor (solver_dense): "densebf16" (its inverse
+    in bfloat16), "dense" (in float32; both from float32 factorisations), "dense64" (the inverse in float64),
+    "densechol" (the factor's triangular solves) or "direct" (a fresh factor every solve).
     tol: relative residual of every linear solve. stats: if a dict, receives solver counters (forward;
     the backward's are added as bwd_* when it runs).
     compile: torch.compile the per-substep element kernels (None: the SAFT_PHYSICS_COMPILE environment

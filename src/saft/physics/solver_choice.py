@@ -14,16 +14,18 @@ from saft.physics.topology import ClothTopology
 
 # solver name -> DenseFactorSolver options (solver_dense): the reused dense factor's variants
 DENSE_SOLVERS = {
-    "dense": dict(precond="inv32"),  # explicit inverse in float32, one GEMV per application
+    # the explicit inverse in float32 (one GEMV per application), made from a float32 factorisation
+    "dense": dict(precond="inv32", factor32=True),
     "dense64": dict(precond="inv64"),
-    "densebf16": dict(precond="invbf16"),  # the inverse in bfloat16: half the GEMV's traffic
+    # the inverse in bfloat16, half the GEMV's traffic: auto's choice off the CPU
+    "densebf16": dict(precond="invbf16", factor32=True),
     "densechol": dict(precond="chol"),  # the Cholesky factor, two triangular solves per application
     "direct": dict(precond="chol", refactor_every_solve=True),  # a fresh factor every solve
 }
+CUDA_DEFAULT = "densebf16"  # R1 on one H100: 118.9 s, CD2 0.445 (BENCHMARKS.md, GPU, third session)
 SOLVERS = ("auto", "lu", "cholmod", "cg", *DENSE_SOLVERS)
 # For A/B runs of whole reconstructions on a GPU (benchmarks/gpu_check.sh): the dense variant "auto" takes off
-# the CPU, e.g. densebf16 (0.350 s against dense's 0.408 s for R1's template on an H100), or a spec of
-# dense_variant, e.g. densebf16:f32=1:age=12
+# the CPU instead of CUDA_DEFAULT, a name or a spec of dense_variant, e.g. dense or densebf16:f32=0:age=12
 ENV_DENSE_SOLVER = "SAFT_DENSE_SOLVER"
 _SPEC_KEYS = {"after": ("refactor_after", int), "age": ("refactor_age", int), "block": ("block", int),
               "f32": ("factor32", lambda v: bool(int(v)))}
@@ -62,7 +64,7 @@ def solver_for(topology: ClothTopology, solver: str, tol: float, stats: SolveSta
             solver = "lu"
         else:
             try:
-                solver = dense_variant(os.environ.get(ENV_DENSE_SOLVER, "dense"))
+                solver = dense_variant(os.environ.get(ENV_DENSE_SOLVER, CUDA_DEFAULT))
             except ValueError as exc:
                 raise ValueError(f"{ENV_DENSE_SOLVER}: {exc}") from None
     if solver in DENSE_SOLVERS:
@@ -83,4 +85,4 @@ def solver_for(topology: ClothTopology, solver: str, tol: float, stats: SolveSta
     raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
 
 
-__all__ = ["DENSE_SOLVERS", "ENV_DENSE_SOLVER", "SOLVERS", "dense_variant", "solver_for"]
+__all__ = ["CUDA_DEFAULT", "DENSE_SOLVERS", "ENV_DENSE_SOLVER", "SOLVERS", "dense_variant", "solver_for"]
