@@ -22,7 +22,7 @@ DENSE_SOLVERS = {
     "densechol": dict(precond="chol"),  # the Cholesky factor, two triangular solves per application
     "direct": dict(precond="chol", refactor_every_solve=True),  # a fresh factor every solve
 }
-CUDA_DEFAULT = "densebf16"  # R1 on one H100: 118.9 s, CD2 0.445 (BENCHMARKS.md, GPU, third session)
+CUDA_DEFAULT = "densebf16"  # R1 on one H100: 93-119 s, CD2 median 0.445 of 3 (BENCHMARKS.md, GPU, third session)
 SOLVERS = ("auto", "lu", "cholmod", "cg", *DENSE_SOLVERS)
 # For A/B runs of whole reconstructions on a GPU (benchmarks/gpu_check.sh): the dense variant "auto" takes off
 # the CPU instead of CUDA_DEFAULT, a name or a spec of dense_variant, e.g. dense or densebf16:f32=0:age=12
