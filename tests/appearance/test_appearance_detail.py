@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import torch
 
-from saft.appearance.detail import (detail_repeat_per_frame, median_frame_texture, project_to_texture,
-                                   texel_triangles, untrusted_detail_frames)
+from saft.appearance.detail import (detail_repeat_per_frame, project_to_texture, texel_triangles,
+                                   untrusted_detail_frames)
 from saft.appearance.guided import GuidedMaps
 from saft.appearance.params import srgb_to_linear
 from saft.scene.camera import look_at
@@ -136,40 +136,3 @@ def test_untrusted_frames_do_not_teach_the_detail_share(monkeypatch, tmp_path, u
     assert res.detail_frames_left_out == ([0, 1, 2] if untrusted else [])
     save_appearance(res, tmp_path)      # written into appearance.json, read back
     assert load_appearance(tmp_path).detail_frames_left_out == res.detail_frames_left_out
-
-
-def test_the_median_of_the_frames_leaves_a_moving_highlight_out_and_clusters_on_the_material():
-    """A sheet of two materials (left half red, right half blue) whose frame 0 carries a bright highlight
-    band on the red half, which moves off the cloth in frames 1-2: the median of the three frames in texture
-    space has no band, and GuidedMaps given it finds the two materials (on frame 0 alone the band is a
-    cluster of its own) and fills the band of its texture from the red texels beside it."""
-    verts, tri, uvs = _sheet(9)
-    cam = _camera(320, 320, 400.0)                     # the sheet: image columns 80-240
-    size = 512                                         # (a highlight is judged against ~60 texels around it)
-    cols = np.arange(cam.width)
-    base = np.where(cols[None, :, None] < cam.width // 2, [0.5, 0.05, 0.05], [0.05, 0.05, 0.5])
-    base = np.broadcast_to(base, (cam.height, cam.width, 3))
-    frames = []
-    for band_at in (120, -100, -100):                 # the highlight's column, off the cloth after frame 0
-        band = 0.45 * (np.abs(cols - band_at) < 2.5)[None, :, None]
-        frames.append(np.clip(base + band, 0, 1))
-    frames = np.stack(frames)                          # sRGB-encoded frames, as fit_appearance gets them
-    mask = np.ones(frames.shape[:3])
-    med = median_frame_texture(np.stack([verts] * 3), tri, uvs, cam, frames, mask, size, [0, 1, 2])
-    tri_of, bary = texel_triangles(tri, uvs, size)
-    frame0, _ = project_to_texture(verts, tri, tri_of, bary, cam, srgb_to_linear(frames[0]), mask[0])
-    assert np.isfinite(med).all()
-    red = med[:, : size // 2 - 2]
-    assert np.allclose(red, red[0, 0], atol=1e-3)             # no band left
-    assert (frame0[:, : size // 2].max(axis=(0, 2)) > red.max() + 0.1).any()   # while frame 0 had it
-    clustered_on_t = GuidedMaps(frame0, size=size, gain_grid=2, clusters=3, seed=0)
-    clustered_on_median = GuidedMaps(frame0, size=size, gain_grid=2, clusters=3, seed=0, median_frames=med)
-    assert clustered_on_t.num_clusters == 3 and clustered_on_median.num_clusters == 2
-    labels = clustered_on_median.members.argmax(0).numpy()
-    assert len(np.unique(labels[:, : size // 2 - 2])) == 1 and len(np.unique(labels[:, size // 2 + 2:])) == 1
-    texture = (clustered_on_median.texture + clustered_on_median.detail).numpy()   # T, as the model holds it
-    red_t, red = texture[:, : size // 2 - 8], frame0[0, 20]                     # (the band: texels 115-141)
-    assert frame0[:, : size // 2 - 8].mean(-1).max() > 2 * red.mean()              # frame 0's band ...
-    assert red_t.mean(-1).max() < 1.5 * red.mean()                                 # ... is gone but for its rim
-    assert np.allclose(np.median(red_t, axis=(0, 1)), red, atol=1e-3)
-    assert np.allclose(clustered_on_t.texture + clustered_on_t.detail, np.clip(frame0, 1e-3, 1), atol=1e-5)

@@ -134,38 +134,3 @@ def test_irradiance_maps_start_from_the_physical_division():
         diffuse = model(torch.full((8, 16, 3), level))["diffuse"]
         expected = (model.detailed_texture() / level).clamp(0, 1)
         assert torch.allclose(diffuse, expected, rtol=3e-3, atol=1e-5)
-
-
-def test_frame_zero_specular_is_the_black_render_in_texture_space_and_is_taken_off_the_texture():
-    """frame_zero_specular samples frame 0 rendered with a black base colour into texture space (a flat
-    patch under a blob: about the black render's mean over the patch); IrradianceMaps subtracts it from
-    T_d before the division, keeping at least SPECULAR_FLOOR·T_d."""
-    from saft.appearance.irradiance import SPECULAR_FLOOR, SPECULAR_GRID, frame_zero_specular
-    from saft.appearance.renderer import ClothRenderer
-
-    verts, tris, uvs = _grid(5, 0.0, 1.0)
-    verts = verts - [0.5, 0.5, 0.0]
-    K = np.array([[80.0, 0, 31.5], [0, 80.0, 31.5], [0, 0, 1]])
-    cam = look_at(np.array([0.0, 0.0, 3.0]), np.zeros(3), np.array([0, -1.0, 0]), K, 64, 64)
-    env = _blob_env([0.1, 0.2, 1.0], 16, 32)            # the blob behind the camera: a highlight on the patch
-    r = ClothRenderer(tris, uvs, cam, max_depth=2, map_shape=(8, 8), env_shape=env.shape[:2])
-    r.set_vertices(verts)
-    rough, metal = torch.full((8, 8), 0.3), torch.zeros(8, 8)
-    black = r.render_numpy(np.zeros((8, 8, 3)), rough, metal, env, spp=256)
-    mask = (r.render_numpy(np.ones((8, 8, 3)), rough, metal, np.full_like(env, 10.0), spp=4).max(-1) > 1e-3)
-    spec = frame_zero_specular(r, verts, tris, uvs, mask.astype(np.float32), rough, metal, torch.as_tensor(env),
-                               spp=256)
-    assert spec.shape == (SPECULAR_GRID, SPECULAR_GRID, 3)
-    inner = spec[8:-8, 8:-8].reshape(-1, 3).mean(0)
-    assert np.all(np.abs(inner / black[mask].mean(0) - 1) < 0.25), (inner, black[mask].mean(0))
-    assert inner.min() > 0
-    # the subtraction, and its floor
-    e0 = FrameZeroIrradiance(verts, np.array(tris), uvs, cam, grid=8, env_shape=(8, 16))
-    texture = np.full((32, 32, 3), 0.4, np.float32)
-    model = IrradianceMaps(texture, e0, size=32, gain_grid=4, clusters=1)
-    before = model(torch.full((8, 16, 3), 1.0))["diffuse"]
-    model.set_specular0(np.full((SPECULAR_GRID, SPECULAR_GRID, 3), [0.1, 0.0, 0.39], np.float32))
-    after = model(torch.full((8, 16, 3), 1.0))["diffuse"]
-    assert torch.allclose(after[..., 0], before[..., 0] * 0.75, rtol=1e-4)
-    assert torch.allclose(after[..., 1], before[..., 1], rtol=1e-4)
-    assert torch.allclose(after[..., 2], before[..., 2] * SPECULAR_FLOOR, rtol=1e-4)

@@ -28,17 +28,7 @@ class AppearanceConfig:
     # grid) or "irradiance" (π·T / E0, E0 the frame-0 irradiance from the fitted env map, times a grey
     # log-gain grid: appearance.irradiance; the profiles' choice, BENCHMARKS "A physically divided diffuse")
     diffuse_shading: Literal["gain", "irradiance"] = "gain"
-    # diffuse_shading="irradiance": every this many epochs the frame-0 specular predicted by the current
-    # maps and env map (frame 0 rendered with a black base colour, sampled into texture space) is taken off
-    # T before the division (appearance.irradiance.frame_zero_specular); 0 = nothing subtracted
-    specular0_every: int = 0
-    specular0_spp: int = 32
     clusters: int = 6                    # maps="guided": material clusters (k-means on the texture's colours)
-    # maps="guided": > 1: the per-texel median of this many frames (evenly spaced, sampled into texture space
-    # through their meshes: appearance.detail.median_frame_texture) is what the clusters are found on instead
-    # of the texture (frame 0's shading and highlights are no materials), and the texture's frame-0
-    # highlights (much brighter than that median) take their cluster's nearest texel (appearance.guided)
-    median_frames: int = 0
     texture_smoothing: float = 0.0       # maps="guided": σ (texels) of the blur inside each cluster
     # maps="guided": a frame teaches the per-cluster detail share only if it repeats at least this fraction
     # of the texture's detail that frames 1-2 repeat (appearance.detail: its motion lines the pattern up);
@@ -108,10 +98,6 @@ class AppearanceConfig:
             bad("maps", "must be 'decoder', 'texels' or 'guided'")
         if self.diffuse_shading not in ("gain", "irradiance"):
             bad("diffuse_shading", "must be 'gain' or 'irradiance'")
-        if self.median_frames < 0:
-            bad("median_frames", "must be >= 0")
-        if self.specular0_every < 0 or self.specular0_spp < 1:
-            bad("specular0_every", "specular0_every must be >= 0 and specular0_spp >= 1")
         if self.gain_grid < 1 or self.clusters < 1:
             bad("clusters", "gain_grid and clusters must be >= 1")
         if self.env_levels < 1 or (self.env_height >> (self.env_levels - 1)) < 1:

@@ -29,8 +29,6 @@ noise, R ≈ 0), the test says nothing and every frame is kept.
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 
 from saft.appearance.guided import smooth_within_clusters
@@ -135,21 +133,6 @@ def detail_repeat_per_frame(model, vertices, triangles, uvs, camera: Camera, rgb
         c0 = float((detail[m] * d0[m]).sum())
         out[f] = float((detail[m] * d[m]).sum()) / c0 if c0 > 0 else 0.0
     return out
-
-
-def median_frame_texture(vertices, triangles, uvs, camera: Camera, rgb_srgb, mask, size: int, frames) -> np.ndarray:
-    """(size, size, 3) linear: per texel the median over `frames` of the frames sampled into texture space
-    through their meshes (project_to_texture; the frames where the texel is seen; NaN where none sees it).
-    A highlight that moves over the cloth from frame to frame is not in it, nor is one frame's shading."""
-    tri_of, bary = texel_triangles(triangles, uvs, size)
-    stack = []
-    for f in frames:
-        linear = srgb_to_linear(np.clip(np.asarray(rgb_srgb[f], dtype=np.float64), 0.0, 1.0))
-        values, valid = project_to_texture(vertices[f], triangles, tri_of, bary, camera, linear, mask[f])
-        stack.append(np.where(valid[..., None], values, np.nan))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)   # all-NaN texels: none of the frames sees them
-        return np.nanmedian(np.stack(stack), axis=0)
 
 
 FLOOR = 0.1    # below this repeat on the first frames the detail is noise everywhere: no frame is judged

@@ -14,10 +14,10 @@ import torch
 import torch.nn.functional as Fnn
 
 from saft.appearance.config import AppearanceConfig
-from saft.appearance.detail import median_frame_texture, untrusted_detail_frames
+from saft.appearance.detail import untrusted_detail_frames
 from saft.appearance.evidence import cluster_evidence, undetermined_note
 from saft.appearance.guided import GuidedMaps
-from saft.appearance.irradiance import FrameZeroIrradiance, IrradianceMaps, frame_zero_specular
+from saft.appearance.irradiance import FrameZeroIrradiance, IrradianceMaps
 from saft.appearance.mitsuba_backend import load_mitsuba
 from saft.appearance.params import (EnvironmentMap, PyramidEnvironmentMap, TexelMaps, TextureDecoder, colour_weight,
                                     env_amplitude, env_smoothness, linear_to_srgb, srgb_to_linear)
@@ -52,15 +52,14 @@ class AppearanceResult:
     detail_frames_left_out: list[int] | None = None
 
 
-def _build_model(cfg: AppearanceConfig, init_texture, frame0=None, median_frames=None) -> torch.nn.Module:
-    """frame0: (vertices (V, 3), triangles, uvs, camera) of frame 0, for diffuse_shading="irradiance";
-    median_frames: the frames' median in texture space for maps="guided" (None: not used)."""
+def _build_model(cfg: AppearanceConfig, init_texture, frame0=None) -> torch.nn.Module:
+    """frame0: (vertices (V, 3), triangles, uvs, camera) of frame 0, for diffuse_shading="irradiance"."""
     if cfg.maps == "guided":
         if init_texture is None:
             raise SaftInputError("appearance.maps", "'guided' maps start from the phase-1 texture; none was given")
         kw = dict(size=cfg.texel_size, gain_grid=cfg.gain_grid, clusters=cfg.clusters, min_roughness=cfg.min_roughness,
                   init_roughness=cfg.init_roughness, init_metallic=cfg.init_metallic, seed=cfg.seed,
-                  smoothing=cfg.texture_smoothing, median_frames=median_frames)
+                  smoothing=cfg.texture_smoothing)
         texture = srgb_to_linear(np.asarray(init_texture, dtype=np.float32)[..., :3])
         if cfg.diffuse_shading == "irradiance":
             e0 = FrameZeroIrradiance(*frame0, env_shape=(cfg.env_height, cfg.env_width))
@@ -174,11 +173,7 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
     slope_t = srgb_slope(rgb_t)
 
     torch.manual_seed(cfg.seed)
-    median = None
-    if cfg.maps == "guided" and cfg.median_frames > 1:
-        picked = np.unique(np.linspace(0, n_frames - 1, min(cfg.median_frames, n_frames)).round().astype(int))
-        median = median_frame_texture(verts, triangles, uvs, camera, rgb, mask, cfg.texel_size, picked)
-    model = _build_model(cfg, init_texture, (verts[0], triangles, uvs, camera), median).to(dev)
+    model = _build_model(cfg, init_texture, (verts[0], triangles, uvs, camera)).to(dev)
     left_out = None   # the frames that do not teach the detail share (appearance.detail); None: not tested
     if isinstance(model, GuidedMaps) and cfg.detail_trust > 0:
         left_out = untrusted_detail_frames(model, verts, triangles, uvs, camera, rgb, mask, cfg.texture_smoothing,
@@ -226,12 +221,6 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
         else:
             frames = np.arange(n_frames)
         env_eff = env(w)
-        if isinstance(model, IrradianceMaps) and cfg.specular0_every and epoch % cfg.specular0_every == 0:
-            with torch.no_grad():
-                m = model.material_maps()
-                model.set_specular0(frame_zero_specular(renderer, verts[0], triangles, uvs, mask_t[0].cpu().numpy(),
-                                                        m["roughness"], m["metallic"], env_eff.detach(),
-                                                        cfg.specular0_spp, seed=10_000_019 + epoch))
         maps = model(env_eff)   # IrradianceMaps: the diffuse depends on the env map too
         leaves = {k: v.detach().requires_grad_(True) for k, v in maps.items()}
         env_leaf = env_eff.detach().requires_grad_(True)

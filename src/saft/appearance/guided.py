@@ -26,7 +26,7 @@ import numpy as np
 import torch
 import torch.nn.functional as Fnn
 from scipy.cluster.vq import kmeans2
-from scipy.ndimage import distance_transform_edt, gaussian_filter, median_filter, zoom
+from scipy.ndimage import gaussian_filter
 from torch import nn
 
 
@@ -92,67 +92,18 @@ def smooth_within_clusters(texture: np.ndarray, labels: np.ndarray, sigma: float
     return out.astype(texture.dtype)
 
 
-# A texel is a frame-0 highlight where frame 0 (the texture, blurred by HIGHLIGHT_SIGMA texels) is more than
-# HIGHLIGHT_RATIO times the median of the frames there, relative to that ratio's median around it (the
-# frames' shading differs from frame 0's smoothly). Curved satin's streak: 2-2.5x; cotton, plaid: < 1.5
-# but for 0.2-0.4 % of the texels (noise, UV edges), which the same cluster's neighbours then stand for.
-HIGHLIGHT_RATIO = 1.5
-HIGHLIGHT_SIGMA = 4.0
-
-
-def frame_zero_highlights(texture: np.ndarray, median: np.ndarray) -> np.ndarray:
-    """(S, S) bool: the texels where frame 0 (texture (S, S, 3) linear) is much brighter than the median of
-    the frames (median (S, S, 3), appearance.detail.median_frame_texture): a highlight that moved on."""
-    s = texture.shape[0]
-    blur = lambda a: gaussian_filter(a.mean(-1), HIGHLIGHT_SIGMA, mode="nearest")
-    ratio = blur(texture) / np.maximum(blur(median), 1e-4)
-    f = max(1, s // 128)                          # the neighbourhood's median on a 128² grid, upsampled
-    coarse = ratio[: s // f * f, : s // f * f].reshape(s // f, f, s // f, f).mean((1, 3))
-    local = zoom(median_filter(coarse, size=15, mode="nearest"), (s / coarse.shape[0], s / coarse.shape[1]), order=1)
-    return ratio > HIGHLIGHT_RATIO * local
-
-
-def fill_within_clusters(texture: np.ndarray, labels: np.ndarray, holes: np.ndarray) -> np.ndarray:
-    """texture (S, S, C) with each texel in `holes` set to its nearest texel of the same cluster outside
-    them (unchanged where the whole cluster is holes)."""
-    out = texture.copy()
-    for k in range(int(labels.max()) + 1):
-        member = labels == k
-        hole = holes & member
-        if not hole.any() or not (member & ~holes).any():
-            continue
-        _, (ii, jj) = distance_transform_edt(~(member & ~holes), return_indices=True)
-        out[hole] = texture[ii[hole], jj[hole]]
-    return out
-
-
-def _resized(image: np.ndarray, size: int) -> torch.Tensor:
-    """(size, size, 3) float32: image (h, w, ≥3) area-averaged (or bilinearly upsampled) to size²."""
-    t = torch.as_tensor(np.asarray(image, dtype=np.float32)[..., :3]).permute(2, 0, 1)[None]
-    mode = "area" if t.shape[-1] > size else "bilinear"
-    t = Fnn.interpolate(t, size=(size, size), mode=mode, **({} if mode == "area" else {"align_corners": False}))
-    return t[0].permute(1, 2, 0)
-
-
 class GuidedMaps(nn.Module):
     """Maps of S×S texels from the phase-1 texture (module docstring). texture: (St, St, 3) LINEAR."""
 
     def __init__(self, texture_linear: np.ndarray, size: int = 512, gain_grid: int = 16, clusters: int = 6,
                  min_roughness: float = 1e-3, init_roughness: float = 0.5, init_metallic: float = 0.1, seed: int = 0,
-                 smoothing: float = 0.0, median_frames: np.ndarray | None = None):
-        """median_frames (S', S', 3) linear, optional: the per-texel median of several frames
-        (appearance.detail.median_frame_texture; NaN texels take the texture's). With it the clusters are
-        found on its colours instead of the texture's (frame 0's highlights and shading are not materials),
-        and the texture's frame-0 highlights (frame_zero_highlights) take their cluster's nearest texel."""
+                 smoothing: float = 0.0):
         super().__init__()
-        tex = _resized(texture_linear, size).clamp(1e-3, 1.0).numpy()
-        if median_frames is None:
-            labels = material_clusters(tex, clusters, seed)
-        else:
-            median = _resized(median_frames, size).numpy()
-            median = np.where(np.isfinite(median), median, tex)
-            labels = material_clusters(median, clusters, seed)
-            tex = fill_within_clusters(tex, labels, frame_zero_highlights(tex, median))
+        tex = torch.as_tensor(np.asarray(texture_linear, dtype=np.float32)[..., :3]).permute(2, 0, 1)[None]
+        mode = "area" if tex.shape[-1] > size else "bilinear"
+        tex = Fnn.interpolate(tex, size=(size, size), mode=mode, **({} if mode == "area" else {"align_corners": False}))
+        tex = tex[0].permute(1, 2, 0).clamp(1e-3, 1.0).numpy()
+        labels = material_clusters(tex, clusters, seed)
         self.register_buffer("texture", torch.as_tensor(smooth_within_clusters(tex, labels, smoothing)))
         self.register_buffer("detail", torch.as_tensor(tex) - self.texture)   # what the smoothing removed
         labels = torch.as_tensor(labels)

@@ -29,7 +29,7 @@ import torch.nn.functional as Fnn
 from scipy.ndimage import distance_transform_edt
 from torch import nn
 
-from saft.appearance.detail import project_to_texture, texel_triangles
+from saft.appearance.detail import texel_triangles
 from saft.appearance.guided import GuidedMaps
 from saft.scene.camera import Camera
 from saft.scene.mesh import vertex_normals
@@ -140,9 +140,6 @@ class IrradianceMaps(GuidedMaps):
         # than L starts clipped at 1, which the env map's own gradient (the render is too dark) undoes
         self.gain = nn.Parameter(torch.zeros(1, 1, g, g))
         self.irradiance = irradiance
-        # the frame-0 specular in texture space (linear, SPECULAR_GRID² texels, upsampled), subtracted from T_d
-        # before the division when the fit estimates it (appearance.specular0_every; zero: nothing subtracted)
-        self.register_buffer("specular0", torch.zeros(1, 3, SPECULAR_GRID, SPECULAR_GRID))
 
     def shading(self, env: torch.Tensor) -> torch.Tensor:
         """(S, S, 3) E0↑ / exp(g↑): what the texture is divided by (π aside)."""
@@ -152,40 +149,8 @@ class IrradianceMaps(GuidedMaps):
         gain = Fnn.interpolate(self.gain, size=(s, s), mode="bilinear", align_corners=False)[0, 0][..., None]
         return e0 * torch.exp(-gain)
 
-    @torch.no_grad()
-    def set_specular0(self, specular: np.ndarray) -> None:
-        """specular (SPECULAR_GRID, SPECULAR_GRID, 3): the frame-0 specular in texture space (frame_zero_specular)."""
-        self.specular0.copy_(torch.as_tensor(np.asarray(specular, dtype=np.float32)).permute(2, 0, 1)[None])
-
-    def diffuse_texture(self) -> torch.Tensor:
-        """(S, S, 3) T_d less the frame-0 specular, kept at least SPECULAR_FLOOR·T_d (an overestimated
-        highlight does not leave a black hole)."""
-        t = self.detailed_texture()
-        s = Fnn.interpolate(self.specular0, size=(self.size, self.size), mode="bilinear", align_corners=False)
-        return torch.maximum(t - s[0].permute(1, 2, 0), SPECULAR_FLOOR * t)
-
     def forward(self, env: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         if env is None:
             raise ValueError("IrradianceMaps needs the env map: model(env)")
-        diffuse = (math.pi * self.diffuse_texture() / self.shading(env)).clamp(0.0, 1.0)
+        diffuse = (math.pi * self.detailed_texture() / self.shading(env)).clamp(0.0, 1.0)
         return {"diffuse": diffuse, **self.material_maps()}
-
-
-# The frame-0 specular's texel grid and the floor of what is left of T_d after subtracting it.
-SPECULAR_GRID = 128
-SPECULAR_FLOOR = 0.1
-
-
-@torch.no_grad()
-def frame_zero_specular(renderer, vertices0, triangles, uvs, mask0, roughness, metallic, env, spp: int,
-                        seed: int = 0) -> np.ndarray:
-    """(SPECULAR_GRID, SPECULAR_GRID, 3) the specular part of frame 0 in texture space: frame 0 rendered by
-    `renderer` (a ClothRenderer; mask0 (H, W) its frame-0 mask) with a black base colour and the given
-    roughness, metallic (S, S) and env map, sampled at each texel's point (detail.project_to_texture); texels
-    not seen in frame 0 take their nearest seen texel's value."""
-    renderer.set_vertices(vertices0)
-    black = torch.zeros(*roughness.shape[:2], 3)
-    img = renderer.render(black, roughness, metallic, env, spp=spp, seed=seed).cpu().numpy()
-    tri_of, bary = texel_triangles(triangles, uvs, SPECULAR_GRID)
-    values, seen = project_to_texture(vertices0, triangles, tri_of, bary, renderer.camera, img, mask0)
-    return fill_nearest(values, seen).astype(np.float32)
