@@ -163,7 +163,8 @@ def main(argv=None) -> int:
             if r["fabric"] == fabric:
                 print(json.dumps(r), flush=True)
 
-    print(f"\nappearance benchmark: {args.frames} frames of {args.width}x{args.height} (start {args.start}), video {args.spp} spp, "
+    print(f"\nappearance benchmark: {args.frames} frames of {args.width}x{args.height} (start {args.start}), "
+          f"video {args.spp} spp, "
           f"relit views {args.eval_spp} spp, profile {cfg.profile}, overrides {args.set or 'none'}")
     print("| fabric | method | diffuse PSNR (dB) | roughness MAE | metallic MAE | relit PSNR video light (dB) | "
           "relit PSNR unseen light (dB) | fit wall (s) | fit CPU (s) |")
