@@ -17,6 +17,11 @@ the "video" environment map (saft.synthetic.appearance.write_appearance_scene; s
     PYTHONPATH=src nice -n 10 python3 benchmarks/bench_appearance.py                 # 16 frames, 160x120
     PYTHONPATH=src nice -n 10 python3 benchmarks/bench_appearance.py --frames 32 --width 320 --height 240
     PYTHONPATH=src python3 benchmarks/bench_appearance.py --fabrics lame --set lambda_metallic_l1=0   # ablation
+    PYTHONPATH=src python3 benchmarks/bench_appearance.py --start 24 ...   # frame 0 billowed, not flat
+
+``--start N`` drops the first N simulated frames, so that frame 0 (and the template) is the cloth already
+curved by the wind and its shading varies across it (AppearanceSceneSpec.start); scenes and runs are cached
+under names ending in ``_sN``.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from saft.appearance import fit_appearance
 from saft.appearance.config import AppearanceConfig, cpu_profile, paper_profile
@@ -42,19 +48,20 @@ from saft.synthetic.appearance import AppearanceSceneSpec, write_appearance_scen
 from saft.synthetic.fabrics import FABRICS
 
 
-def phase1_texture(scene_dir: Path, out: Path) -> np.ndarray:
+def phase1_texture(scene_dir: Path, out: Path, threads: int = 0) -> np.ndarray:
     """The texture of saft's phase 1 on this scene (cached in `out`)."""
     if (out / "texture.png").is_file():
         return read_image(out / "texture.png")[..., :3]
-    cfg = load_saft_config(None, ['run.device="cpu"', "shape.enabled=false", "appearance.enabled=false"])
+    cfg = load_saft_config(None, ['run.device="cpu"', f"run.threads={threads}", "shape.enabled=false",
+                                  "appearance.enabled=false"])
     return reconstruct(load_scene(scene_dir), cfg, out, overwrite=True, quiet=True).texture
 
 
-def own_motion(scene_dir: Path, out: Path) -> tuple[np.ndarray, np.ndarray, float]:
+def own_motion(scene_dir: Path, out: Path, threads: int = 0) -> tuple[np.ndarray, np.ndarray, float]:
     """saft's own motion (F, V, 3), its phase-1 texture and the motion's mean CD2 (1e-4 m²): `saft
     reconstruct` of the scene with phase 3 off (cached in `out`: timings.json is written last)."""
     if not (out / "timings.json").is_file():
-        cfg = load_saft_config(None, ['run.device="cpu"', "appearance.enabled=false"])
+        cfg = load_saft_config(None, ['run.device="cpu"', f"run.threads={threads}", "appearance.enabled=false"])
         reconstruct(load_scene(scene_dir), cfg, out, overwrite=True, quiet=True)
     files = sorted((out / "meshes").glob("frame_*.obj"))
     positions = np.stack([read_obj(p).vertices for p in files]).astype(np.float64)
@@ -99,6 +106,8 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=16)
     ap.add_argument("--width", type=int, default=160)
     ap.add_argument("--height", type=int, default=120)
+    ap.add_argument("--start", type=int, default=0, help="simulated frames dropped before frame 0 (> 0: frame 0 "
+                    "is billowed, not flat)")
     ap.add_argument("--spp", type=int, default=64, help="samples per pixel of the videos")
     ap.add_argument("--eval-spp", type=int, default=64, help="samples per pixel of the relit novel views")
     ap.add_argument("--root", default="/tmp/saft-appearance-bench")
@@ -108,6 +117,7 @@ def main(argv=None) -> int:
     ap.add_argument("--own-motion", action="store_true", help="add the row of phase 3 on saft's own motion (its texture + shape run cached under --root)")
     ap.add_argument("--no-baseline", action="store_true")
     ap.add_argument("--no-true-motion", action="store_true", help="skip the row of phase 3 on the true motion")
+    ap.add_argument("--threads", type=int, default=0, help="torch CPU threads (run.threads; 0 = automatic)")
     ap.add_argument("--json", default=None, help="write the rows to this file")
     ap.add_argument("--save-maps", default=None, help="write estimated | true maps per fabric into this folder")
     args = ap.parse_args(argv)
@@ -116,17 +126,19 @@ def main(argv=None) -> int:
     cfg = AppearanceConfig.from_dict(merge_overrides(base.to_dict(), args.set), "--set")
     cfg.validate()
     root = Path(args.root)
+    if args.threads:
+        torch.set_num_threads(args.threads)
     rows = []
     for fabric in args.fabrics.split(","):
         spec = AppearanceSceneSpec(fabric=fabric, frames=args.frames, width=args.width, height=args.height,
-                                   spp=args.spp)
-        name = f"{fabric}_{args.frames}f_{args.width}x{args.height}"
+                                   spp=args.spp, start=args.start)
+        name = f"{fabric}_{args.frames}f_{args.width}x{args.height}" + (f"_s{args.start}" if args.start else "")
         t0 = time.perf_counter()
         scene_dir = write_appearance_scene(root / "scenes" / name, spec)
         scene = load_scene(scene_dir)
         gt = read_appearance_ground_truth(scene_dir)
         verts = np.load(scene_dir / "gt_vertices.npy").astype(np.float64)
-        texture = phase1_texture(scene_dir, root / "results" / f"{name}-texture")
+        texture = phase1_texture(scene_dir, root / "results" / f"{name}-texture", args.threads)
         print(f"[{fabric}] scene + phase 1: {time.perf_counter() - t0:.0f} s", flush=True)
         if not args.no_baseline:
             rows.append({"fabric": fabric, **row("texture only", texture_baseline(texture), gt, scene, verts,
@@ -141,7 +153,7 @@ def main(argv=None) -> int:
             if args.save_maps:
                 save_comparison(Path(args.save_maps) / f"{name}.png", res, gt, texture)
         if args.own_motion:
-            positions, own_texture, cd2 = own_motion(scene_dir, root / "results" / f"{name}-shape")
+            positions, own_texture, cd2 = own_motion(scene_dir, root / "results" / f"{name}-shape", args.threads)
             own = fit_appearance(positions, scene.template.triangles, scene.template.uvs, scene.camera, rgb, mask,
                                  cfg, init_texture=own_texture)
             rows.append({"fabric": fabric, **row("phase 3, saft motion", (own.diffuse, own.roughness, own.metallic),
@@ -151,7 +163,8 @@ def main(argv=None) -> int:
             if r["fabric"] == fabric:
                 print(json.dumps(r), flush=True)
 
-    print(f"\nappearance benchmark: {args.frames} frames of {args.width}x{args.height}, video {args.spp} spp, "
+    print(f"\nappearance benchmark: {args.frames} frames of {args.width}x{args.height} (start {args.start}), "
+          f"video {args.spp} spp, "
           f"relit views {args.eval_spp} spp, profile {cfg.profile}, overrides {args.set or 'none'}")
     print("| fabric | method | diffuse PSNR (dB) | roughness MAE | metallic MAE | relit PSNR video light (dB) | "
           "relit PSNR unseen light (dB) | fit wall (s) | fit CPU (s) |")

@@ -20,6 +20,7 @@ from saft.evaluate.appearance import APPEARANCE_GT_DIR, write_appearance_ground_
 from saft.evaluate.metrics import sample_surface
 from saft.scene.camera import Camera, look_at
 from saft.scene.frames import FrameSequence
+from saft.scene.mesh import QuadMesh
 from saft.scene.scene import Scene
 from saft.synthetic.benchmark_scenes import DONE_FILE, GRAVITY, BenchSceneSpec, _write_folder, path_trace, simulate
 from saft.synthetic.fabrics import environment_map, fabric_maps
@@ -137,7 +138,9 @@ def render_targets(scene: SyntheticScene, spp: int = 128, device="cpu", camera: 
 @dataclass(frozen=True)
 class AppearanceSceneSpec:
     """A cloth in wind (saft's simulator, benchmark_scenes scenario "a") path-traced with a fabric's maps
-    under the "video" environment; see write_appearance_scene."""
+    under the "video" environment; see write_appearance_scene. start > 0 drops the first `start` simulated
+    frames: frame 0 (and the template) is then the cloth already billowed by the wind, curved and shaded
+    across (issue 28: a frame 0 whose folds the frame-0 irradiance has to divide out), not the flat sheet."""
 
     fabric: str = "plaid"
     frames: int = 16
@@ -152,6 +155,7 @@ class AppearanceSceneSpec:
     env_height: int = 64
     env_width: int = 128
     seed: int = 0
+    start: int = 0                 # simulated frames before frame 0 (0: frame 0 is the flat rest shape)
 
 
 def appearance_camera(spec: AppearanceSceneSpec) -> Camera:
@@ -163,6 +167,19 @@ def appearance_camera(spec: AppearanceSceneSpec) -> Camera:
                    spec.height)
 
 
+def appearance_motion(spec: AppearanceSceneSpec, device="cpu") -> tuple[QuadMesh, np.ndarray, np.ndarray]:
+    """(template, vertices (frames, V, 3), held vertices) of the scene: scenario "a" simulated for
+    start + frames frames, the first `start` dropped; the template is frame 0's shape (the rest shape itself
+    when start = 0; else the billowed cloth, as a real video's template is its first frame)."""
+    sim = BenchSceneSpec(grid=spec.grid, size=spec.size, frames=spec.start + spec.frames, frame_dt=spec.frame_dt,
+                         seed=spec.seed)
+    template, positions, held = simulate("a", sim, device)
+    positions = positions[spec.start:]
+    if spec.start:
+        template = template.with_vertices(positions[0].copy())
+    return template, positions, held
+
+
 def write_appearance_scene(folder, spec: AppearanceSceneSpec = AppearanceSceneSpec(), device="cpu"):
     """Simulate, render and write one scene folder with appearance ground truth (native layout, README
     "Scene format", plus ``appearance_gt/``: base_color.png (sRGB), roughness.png, metallic.png (linear),
@@ -171,13 +188,14 @@ def write_appearance_scene(folder, spec: AppearanceSceneSpec = AppearanceSceneSp
     A folder already written from this very spec is kept. Returns the folder."""
     folder = Path(folder)
     info = {"kind": "appearance", "spec": asdict(spec)}
+    if not spec.start:  # the folders written before `start` existed stay valid
+        del info["spec"]["start"]
     try:
         if json.loads((folder / DONE_FILE).read_text()) == json.loads(json.dumps(info)):
             return folder
     except (OSError, ValueError):
         pass
-    sim = BenchSceneSpec(grid=spec.grid, size=spec.size, frames=spec.frames, frame_dt=spec.frame_dt, seed=spec.seed)
-    template, positions, held = simulate("a", sim, device)
+    template, positions, held = appearance_motion(spec, device)
     camera = appearance_camera(spec)
     base, rough, metal = fabric_maps(spec.fabric, spec.map_size, spec.seed)
     env = environment_map("video", spec.env_height, spec.env_width)
