@@ -71,3 +71,27 @@ def test_a_checkpointed_state_restores_v0():
         state.params.v0_vertex[2, 1] = 0.5
     back = restore_shape_state(state.state_dict(), cfg, "cpu")
     assert torch.equal(back.params.v0_vertex, state.params.v0_vertex) and back.params.v0_vertex.requires_grad
+
+
+def test_field_from_tracks_recovers_an_in_plane_motion():
+    from saft.reconstruct.force_field import affine_basis
+    from saft.reconstruct.initial_velocity import field_from_tracks
+    from saft.reconstruct.tracks import VertexTracks, project
+    from saft.scene.camera import look_at
+    from saft.synthetic import grid_template
+
+    template = torch.tensor(grid_template(6, 0.4).vertices)
+    K = np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]])
+    camera = look_at((0.0, 0.0, 1.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), K, 320, 240)
+    basis = affine_basis(template)
+    truth = torch.zeros(4, 3, dtype=torch.float64)
+    truth[0, :2] = torch.tensor([0.3, -0.2])    # a translation in the image plane
+    truth[1, 1] = 0.4                           # and a shear: the right side rises faster
+    dt = 1 / 30
+    moved = template + dt * initial_velocity(None, truth, basis)
+    points = torch.stack([project(template, camera)[0], project(moved, camera)[0]])
+    tracks = VertexTracks(points, torch.ones(2, len(template), dtype=torch.bool), 320.0)
+    got = field_from_tracks(tracks, template, camera, dt, basis, ridge=1e-6)
+    assert torch.allclose(got[:2, :2], truth[:2, :2], atol=0.02)
+    tracks.valid[1] = False
+    assert field_from_tracks(tracks, template, camera, dt, basis) is None

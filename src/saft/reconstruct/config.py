@@ -183,6 +183,7 @@ class ShapeConfig:
     lr_v0_field: float = 0.0
     lr_v0_vertex: float = 0.0
     lambda_v0: float = 1e-3
+    v0_from_tracks: bool = False          # the affine part starts from the tracks' step 0 → 1, not from 0
     normalize_loss: bool = True           # divide the loss by its detached value before backward
     grad_clip: float = 1e3
     autoclip_quantile: float = 0.75

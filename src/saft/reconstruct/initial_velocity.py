@@ -9,7 +9,10 @@ swing about an edge) plus per-vertex velocities,
     v0(v) = u_v + c_0 + Σ_j x̂_v,j c_j
 
 both starting at 0 (so a cloth at rest starts as before), each with its own Adam. R_V, the mean size of
-v0 over the vertices, is its prior: at rest unless the video says otherwise.
+v0 over the vertices, is its prior: at rest unless the video says otherwise. With shape.v0_from_tracks, the
+affine part starts instead from the point tracks' first step (field_from_tracks): the least-squares affine
+velocity whose image motion over frame 0 → 1 is the tracks' (ridge-regularised: what the image cannot
+see, motion along the rays, stays near 0).
 """
 
 from __future__ import annotations
@@ -17,6 +20,8 @@ from __future__ import annotations
 import torch
 
 from saft.reconstruct.force_field import field_accelerations
+from saft.reconstruct.tracks import VertexTracks, project
+from saft.scene.camera import Camera
 
 
 def initial_velocity(vertex: torch.Tensor | None, field: torch.Tensor | None,
@@ -36,4 +41,37 @@ def velocity_prior(v0: torch.Tensor | None, like: torch.Tensor) -> torch.Tensor:
     return v0.norm(dim=-1).mean()
 
 
-__all__ = ["initial_velocity", "velocity_prior"]
+def field_from_tracks(tracks: VertexTracks, template: torch.Tensor, camera: Camera, frame_dt: float,
+                      basis: torch.Tensor, ridge: float = 1e-2) -> torch.Tensor | None:
+    """(4, 3) affine coefficients of the velocity at frame 0 whose projected motion over one frame best
+    matches the tracks' step from frame 0 to 1, linearised at the template: min Σ_v |J_v v0(v) dt − Δp_v|²
+    + ridge · tr(AᵀA)/12 · |c|², J_v the projection's Jacobian (2 × 3, by finite differences). None with
+    fewer than 8 tracks valid in both frames."""
+    if tracks.points.shape[0] < 2:
+        return None
+    valid = (tracks.valid[0] & tracks.valid[1]).to(template.device)
+    if int(valid.sum()) < 8:
+        return None
+    x = template.detach()[valid].to(torch.float64)
+    b = basis[valid].to(torch.float64)
+    uv0, _ = project(x, camera)
+    step = tracks.points[1].to(x)[valid] - uv0                              # (n, 2) pixels
+    eps = 1e-5
+    jac = torch.stack([(project(x + eps * e, camera)[0] - uv0) / eps
+                       for e in torch.eye(3, dtype=x.dtype, device=x.device)], dim=-1)   # (n, 2, 3)
+    a = (frame_dt * jac[:, :, None, :] * b[:, None, :, None]).reshape(-1, 12)  # column k = 3 j + c: c_{j,c}
+    ata = a.T @ a
+    ata = ata + ridge * torch.trace(ata) / 12 * torch.eye(12, dtype=x.dtype, device=x.device)
+    return torch.linalg.solve(ata, a.T @ step.reshape(-1)).reshape(4, 3).to(template.dtype)
+
+
+def seed_field_from_tracks(field: torch.Tensor, tracks: VertexTracks, template: torch.Tensor, camera: Camera,
+                           frame_dt: float, basis: torch.Tensor) -> None:
+    """Set the affine coefficients `field` (4, 3) in place to field_from_tracks's, where there are enough tracks."""
+    start = field_from_tracks(tracks, template, camera, frame_dt, basis)
+    if start is not None:
+        with torch.no_grad():
+            field.copy_(start)
+
+
+__all__ = ["field_from_tracks", "seed_field_from_tracks", "initial_velocity", "velocity_prior"]

@@ -36,7 +36,7 @@ from saft.reconstruct.config import PhysicsConfig, ShapeConfig
 from saft.reconstruct.frame_schedule import FrameSchedule, window_first_frame
 from saft.reconstruct.context import PhaseContext
 from saft.reconstruct.force_field import affine_basis, total_accelerations
-from saft.reconstruct.initial_velocity import initial_velocity, velocity_prior
+from saft.reconstruct.initial_velocity import initial_velocity, seed_field_from_tracks, velocity_prior
 from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_loss
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
 from saft.reconstruct.step_guard import StepGuard
@@ -75,8 +75,7 @@ class ShapeParams:
         t.update({n: getattr(self, n) for n in ("v0_vertex", "v0_field") if getattr(self, n) is not None})
         return t
 
-    def velocity(self, basis: torch.Tensor) -> torch.Tensor | None:
-        """(V, 3) learned velocity at frame 0, or None (at rest)."""
+    def velocity(self, basis: torch.Tensor) -> torch.Tensor | None:   # (V, 3) at frame 0, or None (at rest)
         return initial_velocity(self.v0_vertex, self.v0_field, basis)
 
     def accelerations(self, basis: torch.Tensor, lo: int, hi: int) -> torch.Tensor:
@@ -453,6 +452,8 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
               "anchor_log10": cfg.anchor_log10_range}
     with record_function("saft.shape.tracks"):
         tracks = shape_tracks(ctx, cfg, texture, sim.template)
+    if cfg.v0_from_tracks and tracks is not None and state.epoch == 0 and state.params.v0_field is not None:
+        seed_field_from_tracks(state.params.v0_field, tracks, sim.template, ctx.camera, sim.frame_dt, sim.field_basis)
     if cfg.window > 0 and state.states is None:
         zeros = sim.template.new_zeros((n_frames,) + tuple(sim.template.shape))
         state.states = FrameStates(zeros.clone(), zeros.clone(), 1)
