@@ -20,7 +20,7 @@ def _sim_and_state(cfg, frames=6):
 def test_off_by_default_and_at_rest_at_first():
     sim, off = _sim_and_state(ShapeConfig())
     assert off.params.velocity(sim.field_basis) is None and "v0_field" not in off.params.tensors()
-    sim, on = _sim_and_state(ShapeConfig(lr_v0_field=0.1, lr_v0_vertex=0.1))
+    sim, on = _sim_and_state(ShapeConfig(lr_v0=0.1))
     with torch.no_grad():
         assert torch.equal(sim.simulate(on.params, 4), sim.simulate(off.params, 4))
     assert float(velocity_prior(on.params.velocity(sim.field_basis), sim.template).detach()) == 0.0
@@ -31,10 +31,10 @@ def test_a_uniform_field_is_the_same_per_vertex_velocity_and_moves_the_cloth():
     basis[:, 0] = 1.0
     field = torch.zeros(4, 3, dtype=torch.float64)
     field[0] = torch.tensor([0.0, 0.0, 1.0])
-    v = initial_velocity(torch.zeros(9, 3, dtype=torch.float64), field, basis)
+    v = initial_velocity(field, basis)
     assert torch.allclose(v, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(9, 3))
     assert float(velocity_prior(v, v)) == 1.0
-    sim, state = _sim_and_state(ShapeConfig(lr_v0_field=0.1))
+    sim, state = _sim_and_state(ShapeConfig(lr_v0=0.1))
     with torch.no_grad():
         state.params.v0_field[0, 2] = 1.0
         x = sim.simulate(state.params, 3)
@@ -44,7 +44,7 @@ def test_a_uniform_field_is_the_same_per_vertex_velocity_and_moves_the_cloth():
 def test_v0_gets_gradients_full_and_windowed_agree_and_a_window_holds_it():
     from saft.reconstruct.shape_phase import outside_window, restore_outside_window
 
-    sim, state = _sim_and_state(ShapeConfig(lr_v0_field=0.1, lr_v0_vertex=0.1, window=2))
+    sim, state = _sim_and_state(ShapeConfig(lr_v0=0.1, window=2))
     p = state.params
     with torch.no_grad():
         p.v0_field[0] = torch.tensor([0.1, 0.2, 0.3], dtype=p.v0_field.dtype)
@@ -52,25 +52,25 @@ def test_v0_gets_gradients_full_and_windowed_agree_and_a_window_holds_it():
     stepped, _ = sim.simulate_from(p, 0, 4)   # start 0, no stored state: the learned v0
     assert torch.allclose(full, stepped, atol=1e-10)
     full[-1].sum().backward()
-    assert float(p.v0_field.grad.abs().sum()) > 0 and float(p.v0_vertex.grad.abs().sum()) > 0
-    before = [p.v0_field.detach().clone(), p.v0_vertex.detach().clone()]
+    assert float(p.v0_field.grad.abs().sum()) > 0
+    before = p.v0_field.detach().clone()
     for t in p.tensors().values():
         t.grad = torch.ones_like(t)
     keep = outside_window(p, 3)
     state.optimizer.step()
     restore_outside_window(p, 3, keep)
-    assert torch.equal(p.v0_field, before[0]) and torch.equal(p.v0_vertex, before[1])
+    assert torch.equal(p.v0_field, before)
 
 
 def test_a_checkpointed_state_restores_v0():
     from saft.reconstruct.shape_phase import restore_shape_state
 
-    cfg = ShapeConfig(lr_v0_field=0.1, lr_v0_vertex=0.1)
+    cfg = ShapeConfig(lr_v0=0.1)
     _, state = _sim_and_state(cfg)
     with torch.no_grad():
-        state.params.v0_vertex[2, 1] = 0.5
+        state.params.v0_field[1, 2] = 0.5
     back = restore_shape_state(state.state_dict(), cfg, "cpu")
-    assert torch.equal(back.params.v0_vertex, state.params.v0_vertex) and back.params.v0_vertex.requires_grad
+    assert torch.equal(back.params.v0_field, state.params.v0_field) and back.params.v0_field.requires_grad
 
 
 def test_field_from_tracks_recovers_an_in_plane_motion():
@@ -88,7 +88,7 @@ def test_field_from_tracks_recovers_an_in_plane_motion():
     truth[0, :2] = torch.tensor([0.3, -0.2])    # a translation in the image plane
     truth[1, 1] = 0.4                           # and a shear: the right side rises faster
     dt = 1 / 30
-    moved = template + dt * initial_velocity(None, truth, basis)
+    moved = template + dt * initial_velocity(truth, basis)
     points = torch.stack([project(template, camera)[0], project(moved, camera)[0]])
     tracks = VertexTracks(points, torch.ones(2, len(template), dtype=torch.bool), 320.0)
     got = field_from_tracks(tracks, template, camera, dt, basis, ridge=1e-6)

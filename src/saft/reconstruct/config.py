@@ -177,13 +177,11 @@ class ShapeConfig:
     anchor_log10_init: float = 9.0
     anchor_log10_range: tuple[float, float] = (0.0, 9.0)
     lambda_anchor: float = 1e-3
-    # The velocity at frame 0 (saft.reconstruct.initial_velocity; not in the paper, which starts at rest):
-    # learning rates of its affine part and of its per-vertex part (0 = off: at rest), and λ_V of its
-    # prior R_V (the mean |v0|, m/s).
-    lr_v0_field: float = 0.0
-    lr_v0_vertex: float = 0.0
+    # The velocity at frame 0 (saft.reconstruct.initial_velocity; not in the paper, which starts at rest): the
+    # learning rate of its affine field (0 = off: at rest), started from the point tracks' step from frame 0
+    # to 1, and λ_V of its prior R_V (the mean |v0|, m/s). BENCHMARKS.md, "A clip that starts mid-motion".
+    lr_v0: float = 0.0
     lambda_v0: float = 1e-3
-    v0_from_tracks: bool = False          # the affine part starts from the tracks' step 0 → 1, not from 0
     normalize_loss: bool = True           # divide the loss by its detached value before backward
     grad_clip: float = 1e3
     autoclip_quantile: float = 0.75

@@ -2,17 +2,17 @@
 
 A video that starts mid-motion (a cloth already swinging or billowing) cannot be explained from rest: the
 accelerations of the first frames would have to make up the missing momentum, and R_F and the schedule hold
-them back. The shape phase can instead learn v0, parameterised as the per-frame accelerations are
-(saft.reconstruct.force_field): an affine field over the template (12 numbers: a translation, a turn, a
-swing about an edge) plus per-vertex velocities,
+them back. With shape.lr_v0 > 0 the shape phase learns v0 as an affine field over the template, as the
+per-frame accelerations have one (saft.reconstruct.force_field; 12 numbers: a translation, a turn, a swing
+about an edge),
 
-    v0(v) = u_v + c_0 + Σ_j x̂_v,j c_j
+    v0(v) = c_0 + Σ_j x̂_v,j c_j
 
-both starting at 0 (so a cloth at rest starts as before), each with its own Adam. R_V, the mean size of
-v0 over the vertices, is its prior: at rest unless the video says otherwise. With shape.v0_from_tracks, the
-affine part starts instead from the point tracks' first step (field_from_tracks): the least-squares affine
-velocity whose image motion over frame 0 → 1 is the tracks' (ridge-regularised: what the image cannot
-see, motion along the rays, stays near 0).
+started from the point tracks' first step (field_from_tracks: the least-squares affine velocity whose image
+motion over frame 0 → 1 is the tracks', ridge-regularised so that what the image cannot see, motion along
+the rays, stays near 0; a cloth at rest starts near rest) and learned by its own Adam. R_V, the mean size of
+v0 over the vertices, is its prior: at rest unless the video says otherwise. Per-vertex velocities besides
+the field lost (BENCHMARKS.md, "A clip that starts mid-motion").
 """
 
 from __future__ import annotations
@@ -24,14 +24,9 @@ from saft.reconstruct.tracks import VertexTracks, project
 from saft.scene.camera import Camera
 
 
-def initial_velocity(vertex: torch.Tensor | None, field: torch.Tensor | None,
-                     basis: torch.Tensor) -> torch.Tensor | None:
-    """(V, 3) velocity at frame 0 from per-vertex velocities (V, 3) and affine coefficients (4, 3), either
-    None when off; None when both are."""
-    if vertex is None and field is None:
-        return None
-    v = field_accelerations(field[None], basis)[0] if field is not None else 0.0
-    return v + vertex if vertex is not None else v
+def initial_velocity(field: torch.Tensor | None, basis: torch.Tensor) -> torch.Tensor | None:
+    """(V, 3) velocity at frame 0 from the affine coefficients (4, 3); None when off (at rest)."""
+    return None if field is None else field_accelerations(field[None], basis)[0]
 
 
 def velocity_prior(v0: torch.Tensor | None, like: torch.Tensor) -> torch.Tensor:

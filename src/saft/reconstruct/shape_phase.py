@@ -16,8 +16,8 @@ The optimized parameters are log10 Y, B, S (clamped to their ranges), a constant
 mean wind), per-vertex per-frame accelerations and a per-frame affine acceleration field over the
 template (saft.reconstruct.force_field; not in the paper) and, with shape.lr_light > 0, the light vector of
 the relative shading (saft.render.shading; not in the paper: the renderer is then lit relative to frame 0)
-and, with soft anchors (shape.anchors), log10 of each vertex's anchor stiffness and, with shape.lr_v0_field or
-lr_v0_vertex > 0, the velocity at frame 0, each with its own clipped Adam.
+and, with soft anchors (shape.anchors), log10 of each vertex's anchor stiffness and, with shape.lr_v0 > 0, the
+affine velocity at frame 0 (started from the point tracks), each with its own clipped Adam.
 """
 
 from __future__ import annotations
@@ -60,8 +60,7 @@ class ShapeParams:
     field_accel: torch.Tensor | None = None   # (N-1, 4, 3): the affine field's coefficients (force_field.py)
     light: torch.Tensor | None = None         # (3,): first-order light vector of the relative shading (render.shading)
     anchor_log10: torch.Tensor | None = None  # (V,): log10 of the soft anchors' stiffness per unit mass (s^-2)
-    v0_vertex: torch.Tensor | None = None     # (V, 3): per-vertex velocity at frame 0 (initial_velocity.py)
-    v0_field: torch.Tensor | None = None      # (4, 3): the affine part of the velocity at frame 0
+    v0_field: torch.Tensor | None = None      # (4, 3): the affine velocity at frame 0 (initial_velocity.py)
 
     def tensors(self) -> dict[str, torch.Tensor]:
         t = {"log10_Y": self.log10_Y, "log10_B": self.log10_B, "log10_S": self.log10_S,
@@ -72,11 +71,12 @@ class ShapeParams:
             t["light"] = self.light
         if self.anchor_log10 is not None:
             t["anchor_log10"] = self.anchor_log10
-        t.update({n: getattr(self, n) for n in ("v0_vertex", "v0_field") if getattr(self, n) is not None})
+        if self.v0_field is not None:
+            t["v0_field"] = self.v0_field
         return t
 
     def velocity(self, basis: torch.Tensor) -> torch.Tensor | None:   # (V, 3) at frame 0, or None (at rest)
-        return initial_velocity(self.v0_vertex, self.v0_field, basis)
+        return initial_velocity(self.v0_field, basis)
 
     def accelerations(self, basis: torch.Tensor, lo: int, hi: int) -> torch.Tensor:
         """(hi - lo, V, 3) external accelerations beyond the constant one, frames lo..hi-1: D_f plus the
@@ -139,10 +139,8 @@ def _make_optimizer(params: ShapeParams, cfg: ShapeConfig) -> ClippedAdam:
         specs.append(ParamSpec("light", params.light, cfg.lr_light))
     if params.anchor_log10 is not None:
         specs.append(ParamSpec("anchor_log10", params.anchor_log10, cfg.lr_anchor))
-    if params.v0_vertex is not None:
-        specs.append(ParamSpec("v0_vertex", params.v0_vertex, cfg.lr_v0_vertex))
     if params.v0_field is not None:
-        specs.append(ParamSpec("v0_field", params.v0_field, cfg.lr_v0_field))
+        specs.append(ParamSpec("v0_field", params.v0_field, cfg.lr_v0))
     if cfg.optimize_stiffness:
         specs += [ParamSpec(n, getattr(params, n), cfg.lr_stiffness) for n in ("log10_Y", "log10_B", "log10_S")]
     return ClippedAdam(specs, clip=cfg.grad_clip, quantile=cfg.autoclip_quantile, history=cfg.autoclip_history,
@@ -186,14 +184,13 @@ def new_shape_state(num_frames: int, num_vertices: int, gravity: np.ndarray, phy
         light=torch.zeros(3, dtype=dtype, device=device, requires_grad=True) if cfg.lr_light > 0 else None,
         anchor_log10=(torch.full((num_vertices,), float(cfg.anchor_log10_init), dtype=dtype, device=device,
                                  requires_grad=True) if anchors else None),
-        v0_vertex=torch.zeros(num_vertices, 3, dtype=dtype, device=device).requires_grad_() if cfg.lr_v0_vertex > 0 else None,
-        v0_field=torch.zeros(4, 3, dtype=dtype, device=device).requires_grad_() if cfg.lr_v0_field > 0 else None,
+        v0_field=torch.zeros(4, 3, dtype=dtype, device=device, requires_grad=True) if cfg.lr_v0 > 0 else None,
     )
     return ShapeState(params, _make_optimizer(params, cfg), _make_guard(cfg))
 
 
 def restore_shape_state(saved: dict, cfg: ShapeConfig, device) -> ShapeState:
-    always_learned = ("const_accel", "vertex_accel", "field_accel", "light", "anchor_log10", "v0_vertex", "v0_field")
+    always_learned = ("const_accel", "vertex_accel", "field_accel", "light", "anchor_log10", "v0_field")
     p = {k: v.to(device).requires_grad_(k in always_learned or cfg.optimize_stiffness) for k, v in saved["params"].items()}
     params = ShapeParams(**p)
     state = ShapeState(params, _make_optimizer(params, cfg), _make_guard(cfg), saved["epoch"],
@@ -325,7 +322,7 @@ def restore_outside_window(params: ShapeParams, start: int, keep: list[torch.Ten
 
 
 def _initial(params: ShapeParams) -> list[torch.Tensor]:   # frame 0's state: held in windows, as _per_frame
-    return [t for t in (params.v0_vertex, params.v0_field) if t is not None]
+    return [] if params.v0_field is None else [params.v0_field]
 
 
 def _per_frame(params: ShapeParams) -> list[torch.Tensor]:
@@ -452,7 +449,7 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
               "anchor_log10": cfg.anchor_log10_range}
     with record_function("saft.shape.tracks"):
         tracks = shape_tracks(ctx, cfg, texture, sim.template)
-    if cfg.v0_from_tracks and tracks is not None and state.epoch == 0 and state.params.v0_field is not None:
+    if tracks is not None and state.epoch == 0 and state.params.v0_field is not None:
         seed_field_from_tracks(state.params.v0_field, tracks, sim.template, ctx.camera, sim.frame_dt, sim.field_basis)
     if cfg.window > 0 and state.states is None:
         zeros = sim.template.new_zeros((n_frames,) + tuple(sim.template.shape))
