@@ -3,7 +3,7 @@
     pip install -e ".[bench]"          # newton + warp-lang (CPU), for the independent simulator
     python benchmarks/bench_independent.py [--scenes-dir DIR] [--scenarios gust,flag,...] [--variants pinned,unpinned]
                                            [--simulators independent,matched] [--out DIR] [--noise-seed K]
-                                           [--frames N] [--spp N] [--set key=value ...]
+                                           [--frames N] [--spp N] [--start N] [--set key=value ...]
 
 The scenes (saft.synthetic.independent_scenes: a late gust, a flag, a cloth held at two corners, at one
 corner, a folded corner, a gust from the side) are generated into --scenes-dir (default
@@ -12,7 +12,9 @@ corner, a folded corner, a gust from the side) are generated into --scenes-dir (
 both path-traced by Mitsuba at 320 × 240. Each is reconstructed with the default config (shape phases only,
 as bench_scenes.py) and scored against its ground truth: CD2 as the paper defines it (both directions summed),
 1e-4 m². Prints one line per scene, then the table (static template, independent, matched, their ratio) and
-the per-frame curves; writes OUT/bench_independent.json. The last line is
+the per-frame curves; writes OUT/bench_independent.json. --start N > 0 reconstructs each scene without its
+first N frames instead (saft.synthetic.mid_motion, written to SCENES-DIR/mid_motion_N/): a clip that starts
+mid-motion, its template the ground truth of the new frame 0. The last line is
 `independent_cd2_median=<median over the independent scenes> matched_cd2_median=<...>`.
 """
 
@@ -30,6 +32,7 @@ from bench_scenes import run_scene
 from saft.io_utils import atomic_write_json
 from saft.synthetic.independent_scenes import (SCENARIOS, SIMULATORS, VARIANTS, IndependentSceneSpec, scene_names,
                                                write_independent_scenes)
+from saft.synthetic.mid_motion import write_mid_motion_scene
 
 
 def _list(value: str, known, what: str) -> list[str]:
@@ -69,6 +72,7 @@ def main() -> None:
     p.add_argument("--frames", type=int, default=d.frames)
     p.add_argument("--spp", type=int, default=d.spp)
     p.add_argument("--noise-seed", type=int, default=0, help="move the template by 1e-9 m noise of this seed (0 = no)")
+    p.add_argument("--start", type=int, default=0, help="drop the first N frames: a clip starting mid-motion")
     p.add_argument("--generate-only", action="store_true", help="write the scenes and stop")
     args = p.parse_args()
     scenarios = _list(args.scenarios, SCENARIOS, "scenarios")
@@ -79,13 +83,17 @@ def main() -> None:
     write_independent_scenes(args.scenes_dir, spec, scenarios)
     print(f"scenes ready in {args.scenes_dir} ({time.perf_counter() - t0:.0f} s wall, "
           f"{time.process_time() - c0:.0f} s CPU)", flush=True)
+    folders = [args.scenes_dir / n for n in names]
+    if args.start > 0:
+        folders = [write_mid_motion_scene(f, args.scenes_dir / f"mid_motion_{args.start}" / f.name, args.start)
+                   for f in folders]
     if args.generate_only:
         return
     rows = []
-    for name in names:
-        rows.append(run_scene(args.scenes_dir / name, args.out / name, args.device, args.set, args.noise_seed))
+    for folder in folders:
+        rows.append(run_scene(folder, args.out / folder.name, args.device, args.set, args.noise_seed))
         atomic_write_json(args.out / "bench_independent.json",
-                          {"spec": json.loads(json.dumps(asdict(spec))), "overrides": args.set,
+                          {"spec": json.loads(json.dumps(asdict(spec))), "start": args.start, "overrides": args.set,
                            "noise_seed": args.noise_seed, "scenes": rows})
     print_tables(rows)
     med = {m: statistics.median(r["cd2_mean"] for r in rows if f"_{m}_" in r["scene"])

@@ -5,6 +5,7 @@
 - texture_phase   phase 1: texture mapping on frame 0 (paper 3.3.1)
 - shape_phase     phase 2: physics-based shape from template with R_E and R_F (paper 3.3.2)
 - losses.py       image, silhouette, FD smoothness, R_F
+- initial_velocity  the learned velocity at frame 0 (affine, started from the tracks) and its prior R_V
 - optim.py        per-parameter Adam with clipping, non-finite skipping and AutoClip
 - checkpoint.py   resume state written between epochs; Ctrl-C ends at an epoch boundary
 - config_checks   numeric ranges of the config (one line naming the key)

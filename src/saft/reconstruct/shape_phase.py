@@ -10,12 +10,14 @@ the size of the external accelerations beyond the constant one, their component 
 directions of the CURRENT simulated vertices (or the template's) weighted by shape.force_along_weight (or
 force_along_weight_pinned when vertices are pinned; the paper: 0); L_track: the distance of the projected
 vertices to their optical-flow point tracks (saft.reconstruct.tracks; not in the paper); R_A: the held share
-of the soft anchors (ShapeSimulator.held_share; not in the paper).
+of the soft anchors (ShapeSimulator.held_share; not in the paper); R_V: the size of the learned velocity at frame 0
+(saft.reconstruct.initial_velocity; not in the paper).
 The optimized parameters are log10 Y, B, S (clamped to their ranges), a constant acceleration (gravity +
 mean wind), per-vertex per-frame accelerations and a per-frame affine acceleration field over the
 template (saft.reconstruct.force_field; not in the paper) and, with shape.lr_light > 0, the light vector of
 the relative shading (saft.render.shading; not in the paper: the renderer is then lit relative to frame 0)
-and, with soft anchors (shape.anchors), log10 of each vertex's anchor stiffness, each with its own clipped Adam.
+and, with soft anchors (shape.anchors), log10 of each vertex's anchor stiffness and, with shape.lr_v0 > 0, the
+affine velocity at frame 0 (started from the point tracks), each with its own clipped Adam.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ from saft.reconstruct.config import PhysicsConfig, ShapeConfig
 from saft.reconstruct.frame_schedule import FrameSchedule, window_first_frame
 from saft.reconstruct.context import PhaseContext
 from saft.reconstruct.force_field import affine_basis, total_accelerations
+from saft.reconstruct.initial_velocity import initial_velocity, seed_field_from_tracks, velocity_prior
 from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_loss
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
 from saft.reconstruct.step_guard import StepGuard
@@ -57,6 +60,7 @@ class ShapeParams:
     field_accel: torch.Tensor | None = None   # (N-1, 4, 3): the affine field's coefficients (force_field.py)
     light: torch.Tensor | None = None         # (3,): first-order light vector of the relative shading (render.shading)
     anchor_log10: torch.Tensor | None = None  # (V,): log10 of the soft anchors' stiffness per unit mass (s^-2)
+    v0_field: torch.Tensor | None = None      # (4, 3): the affine velocity at frame 0 (initial_velocity.py)
 
     def tensors(self) -> dict[str, torch.Tensor]:
         t = {"log10_Y": self.log10_Y, "log10_B": self.log10_B, "log10_S": self.log10_S,
@@ -67,7 +71,12 @@ class ShapeParams:
             t["light"] = self.light
         if self.anchor_log10 is not None:
             t["anchor_log10"] = self.anchor_log10
+        if self.v0_field is not None:
+            t["v0_field"] = self.v0_field
         return t
+
+    def velocity(self, basis: torch.Tensor) -> torch.Tensor | None:   # (V, 3) at frame 0, or None (at rest)
+        return initial_velocity(self.v0_field, basis)
 
     def accelerations(self, basis: torch.Tensor, lo: int, hi: int) -> torch.Tensor:
         """(hi - lo, V, 3) external accelerations beyond the constant one, frames lo..hi-1: D_f plus the
@@ -130,6 +139,8 @@ def _make_optimizer(params: ShapeParams, cfg: ShapeConfig) -> ClippedAdam:
         specs.append(ParamSpec("light", params.light, cfg.lr_light))
     if params.anchor_log10 is not None:
         specs.append(ParamSpec("anchor_log10", params.anchor_log10, cfg.lr_anchor))
+    if params.v0_field is not None:
+        specs.append(ParamSpec("v0_field", params.v0_field, cfg.lr_v0))
     if cfg.optimize_stiffness:
         specs += [ParamSpec(n, getattr(params, n), cfg.lr_stiffness) for n in ("log10_Y", "log10_B", "log10_S")]
     return ClippedAdam(specs, clip=cfg.grad_clip, quantile=cfg.autoclip_quantile, history=cfg.autoclip_history,
@@ -173,12 +184,13 @@ def new_shape_state(num_frames: int, num_vertices: int, gravity: np.ndarray, phy
         light=torch.zeros(3, dtype=dtype, device=device, requires_grad=True) if cfg.lr_light > 0 else None,
         anchor_log10=(torch.full((num_vertices,), float(cfg.anchor_log10_init), dtype=dtype, device=device,
                                  requires_grad=True) if anchors else None),
+        v0_field=torch.zeros(4, 3, dtype=dtype, device=device, requires_grad=True) if cfg.lr_v0 > 0 else None,
     )
     return ShapeState(params, _make_optimizer(params, cfg), _make_guard(cfg))
 
 
 def restore_shape_state(saved: dict, cfg: ShapeConfig, device) -> ShapeState:
-    always_learned = ("const_accel", "vertex_accel", "field_accel", "light", "anchor_log10")
+    always_learned = ("const_accel", "vertex_accel", "field_accel", "light", "anchor_log10", "v0_field")
     p = {k: v.to(device).requires_grad_(k in always_learned or cfg.optimize_stiffness) for k, v in saved["params"].items()}
     params = ShapeParams(**p)
     state = ShapeState(params, _make_optimizer(params, cfg), _make_guard(cfg), saved["epoch"],
@@ -209,14 +221,16 @@ class ShapeSimulator:
     def simulate(self, params: ShapeParams, num_frames: int, factors: FactorCache | None = None) -> torch.Tensor:
         """(num_frames, V, 3) positions, frame 0 = template; `factors`: the solver's cache across epochs."""
         accel = params.accelerations(self.field_basis, 0, num_frames - 1)
-        return rollout(self.topology, self.template, None, self._physics(params, accel), num_frames=num_frames,
+        v0 = params.velocity(self.field_basis)
+        return rollout(self.topology, self.template, v0, self._physics(params, accel), num_frames=num_frames,
                        substeps=self.phys.substeps, frame_dt=self.frame_dt, pinned=self.pinned,
                        hessian=self.phys.hessian, anchor_positions=self.template, factor_cache=factors)
 
     def simulate_from(self, params: ShapeParams, start: int, num_frames: int, x0: torch.Tensor | None = None,
                       v0: torch.Tensor | None = None,
                       factors: FactorCache | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        """Frames start..num_frames-1 from the state (x0, v0) at frame `start` (None: the template at rest):
+        """Frames start..num_frames-1 from the state (x0, v0) at frame `start` (None: the template, with the
+        learned velocity at frame 0 or at rest):
         positions and velocities at each frame boundary, (num_frames - start, V, 3) each.
 
         The rollout is asked for every substep as a frame of its own (the same steps as simulate()), so
@@ -225,6 +239,7 @@ class ShapeSimulator:
         S = self.phys.substeps
         n = num_frames - start
         x0 = self.template if x0 is None else x0
+        v0 = (params.velocity(self.field_basis) if start == 0 else None) if v0 is None else v0
         v0 = torch.zeros_like(x0) if v0 is None else v0
         a_sub = params.accelerations(self.field_basis, start, num_frames - 1).repeat_interleave(S, dim=0)
         pos = rollout(self.topology, x0, v0, self._physics(params, a_sub), num_frames=(n - 1) * S + 1, substeps=1,
@@ -293,14 +308,21 @@ def outside_window(params: ShapeParams, start: int) -> list[torch.Tensor] | None
     than the slight staleness of the states their small steps cause."""
     if start <= 0:
         return None
-    return [t[:start].detach().clone() for t in _per_frame(params)]
+    return [t[:start].detach().clone() for t in _per_frame(params)] + [t.detach().clone() for t in _initial(params)]
 
 
 def restore_outside_window(params: ShapeParams, start: int, keep: list[torch.Tensor] | None) -> None:
     if keep is not None:
         with torch.no_grad():
-            for t, k in zip(_per_frame(params), keep):
+            n = len(_per_frame(params))
+            for t, k in zip(_per_frame(params), keep[:n]):
                 t[:start] = k
+            for t, k in zip(_initial(params), keep[n:]):
+                t.copy_(k)
+
+
+def _initial(params: ShapeParams) -> list[torch.Tensor]:   # frame 0's state: held in windows, as _per_frame
+    return [] if params.v0_field is None else [params.v0_field]
 
 
 def _per_frame(params: ShapeParams) -> list[torch.Tensor]:
@@ -315,7 +337,7 @@ def along_ray_weight(cfg: ShapeConfig, sim: ShapeSimulator) -> float:
 
 def _regularizers(ctx: PhaseContext, sim: ShapeSimulator, params: ShapeParams, cfg: ShapeConfig,
                   positions: torch.Tensor, depths: list, tracks: VertexTracks | None, start: int, frames: int):
-    """The physics side's terms (float64): (energy, force, track, held, their weighted sum)."""
+    """The physics side's terms (float64): (energy, force, track, held, R_V, their weighted sum)."""
     n_win = frames - start
     energy = sim.energy(positions, params).mean()
     cam_center = torch.as_tensor(ctx.camera.center, dtype=positions.dtype, device=positions.device)
@@ -334,8 +356,10 @@ def _regularizers(ctx: PhaseContext, sim: ShapeSimulator, params: ShapeParams, c
     else:
         track = torch.zeros((), dtype=positions.dtype, device=positions.device)
     held = sim.held_share(params, cfg.anchor_log10_range[0])
-    reg = cfg.lambda_energy * energy + cfg.lambda_force * force + cfg.lambda_track * track + cfg.lambda_anchor * held
-    return energy, force, track, held, reg
+    v0 = velocity_prior(params.velocity(sim.field_basis) if start == 0 else None, energy)
+    reg = (cfg.lambda_energy * energy + cfg.lambda_force * force + cfg.lambda_track * track
+           + cfg.lambda_anchor * held + cfg.lambda_v0 * v0)
+    return energy, force, track, held, v0, reg
 
 
 def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, cfg: ShapeConfig,
@@ -377,7 +401,7 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
 
     # Regularizers on the physics side (float64).
     with record_function("saft.shape.regularizers"):
-        energy, force, track, held, reg = _regularizers(ctx, sim, params, cfg, positions, depths, tracks, start,
+        energy, force, track, held, v0, reg = _regularizers(ctx, sim, params, cfg, positions, depths, tracks, start,
                                                         frames)
     grad_pos = pos_leaf.grad.to(positions) if pos_leaf.grad is not None else torch.zeros_like(positions)
     with record_function("saft.shape.backward"):   # the physics' adjoint and the regularizers' backward
@@ -385,14 +409,15 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
 
     total = (cfg.lambda_image * sums["image"] + cfg.lambda_sil * sums["silhouette"]
              + cfg.lambda_energy * float(energy.detach()) + cfg.lambda_force * float(force.detach())
-             + cfg.lambda_track * float(track.detach()) + cfg.lambda_anchor * float(held.detach()))
+             + cfg.lambda_track * float(track.detach()) + cfg.lambda_anchor * float(held.detach())
+             + cfg.lambda_v0 * float(v0.detach()))
     if cfg.normalize_loss and total > 0:
         # Dividing the loss by its detached value scales every gradient by 1/L (scale-free steps).
         for t in params.tensors().values():
             if t.grad is not None:
                 t.grad.div_(total)
     return {"loss": total, "energy": float(energy.detach()), "force": float(force.detach()),
-            "track": float(track.detach()), "held": float(held.detach()), **sums}
+            "track": float(track.detach()), "held": float(held.detach()), "v0": float(v0.detach()), **sums}
 
 
 def lr_factor(epoch: int, first_final: float, cfg: ShapeConfig) -> float:
@@ -424,6 +449,8 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
               "anchor_log10": cfg.anchor_log10_range}
     with record_function("saft.shape.tracks"):
         tracks = shape_tracks(ctx, cfg, texture, sim.template)
+    if tracks is not None and state.epoch == 0 and state.params.v0_field is not None:
+        seed_field_from_tracks(state.params.v0_field, tracks, sim.template, ctx.camera, sim.frame_dt, sim.field_basis)
     if cfg.window > 0 and state.states is None:
         zeros = sim.template.new_zeros((n_frames,) + tuple(sim.template.shape))
         state.states = FrameStates(zeros.clone(), zeros.clone(), 1)

@@ -8,6 +8,7 @@
 - benchmark_scenes  wind, swing, fold: simulated by saft.physics on the template's mesh, path-traced by Mitsuba
 - newton_cloth      a cloth simulated by NVIDIA Newton's VBD solver (not saft's model; newton imported lazily)
 - independent_scenes  benchmark scenes from Newton on a finer mesh, with saft-simulated (model-matched) twins
+- mid_motion        a written scene without its first frames: a clip that starts mid-motion
 
 It sits above scene/, physics/, render/ and evaluate/ so that those do not import each other for it.
 """
