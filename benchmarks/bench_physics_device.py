@@ -57,6 +57,14 @@ def _solver_names(spec):
     return names
 
 
+def _tag(name: str) -> str:
+    """A solver name as the key of its name=value output lines: dense:20:25 -> dense_20_age25,
+    densebf16:block=3:f32=1 -> densebf16_block3_f32."""
+    if "=" in name:
+        return name.replace(":", "_").replace("f32=1", "f32").replace("=", "")
+    return name.replace(":", "_", 1).replace(":", "_age")
+
+
 def _diffs(pos, grads, ref_pos, ref_grads):
     """(max |pos - ref| in metres, max over parameters of max |g - g_ref| / max |g_ref|)."""
     dp = (pos - ref_pos).abs().max().item()
@@ -175,9 +183,7 @@ def compare(args, load_case, run_once):
     for k, (mode, compile, name) in enumerate(itertools.product(modes, compiles, names)):
         if mode is not None:
             os.environ[ENV_GRAPHS] = mode
-        short = name.replace(":", "_").replace("f32=1", "f32").replace("=", "") if "=" in name else name.replace(":", "_", 1).replace(":", "_age")
-        tag = (short + ("_nographs" if mode == "0" else "")
-               + ("_compiled" if compile else ""))
+        tag = _tag(name) + ("_nographs" if mode == "0" else "") + ("_compiled" if compile else "")
         res = _run_solver(topo, name, tag, compile, args, ref, run_once, args.profile_all or k == 0)
         if res is not None and (best is None or res[0] < best[1]):
             best = (tag, *res)

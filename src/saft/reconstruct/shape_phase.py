@@ -401,8 +401,8 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
 
     # Regularizers on the physics side (float64).
     with record_function("saft.shape.regularizers"):
-        energy, force, track, held, v0, reg = _regularizers(ctx, sim, params, cfg, positions, depths, tracks, start,
-                                                        frames)
+        energy, force, track, held, v0, reg = _regularizers(ctx, sim, params, cfg, positions, depths, tracks,
+                                                            start, frames)
     grad_pos = pos_leaf.grad.to(positions) if pos_leaf.grad is not None else torch.zeros_like(positions)
     with record_function("saft.shape.backward"):   # the physics' adjoint and the regularizers' backward
         torch.autograd.backward([positions, reg], [grad_pos, torch.ones_like(reg)])
