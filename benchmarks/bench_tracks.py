@@ -30,7 +30,7 @@ from saft.reconstruct.tracks import compute_vertex_tracks, project
 from saft.render import get_rasterizer, render_cloth
 from saft.scene import load_scene
 from saft.synthetic.benchmark_scenes import SCENARIOS, BenchSceneSpec, write_benchmark_scenes
-from saft.synthetic.independent_scenes import _on_grid
+from saft.synthetic.independent_scenes import resample_grid
 
 
 def scene_tracks_error(folder: Path, radius: float, fb_threshold: float = 1.0, jump_ratio: float = 0.0,
@@ -50,7 +50,7 @@ def scene_tracks_error(folder: Path, radius: float, fb_threshold: float = 1.0, j
     gt = np.load(folder / "gt_vertices.npy")
     if gt.shape[1] != template.shape[0]:     # a finer ground-truth grid: its points at the template's vertices
         n, m = round(gt.shape[1] ** 0.5), round(template.shape[0] ** 0.5)
-        gt = np.stack([_on_grid(g.reshape(n, n, 3), m) for g in gt])
+        gt = np.stack([resample_grid(g.reshape(n, n, 3), m) for g in gt])
     gt = torch.as_tensor(gt, dtype=torch.float64)
     uv_true, _ = project(gt, camera)
     err = (tracks.points - uv_true).norm(dim=-1).numpy()

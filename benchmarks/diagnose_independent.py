@@ -28,7 +28,7 @@ from saft.reconstruct.losses import image_loss, silhouette_loss
 from saft.reconstruct.tracks import compute_vertex_tracks, project, track_loss
 from saft.render import get_rasterizer, render_cloth
 from saft.scene import load_scene, read_obj
-from saft.synthetic.independent_scenes import _on_grid
+from saft.synthetic.independent_scenes import resample_grid
 
 
 def truth_on_template(folder: Path, n_template: int) -> np.ndarray:
@@ -37,7 +37,7 @@ def truth_on_template(folder: Path, n_template: int) -> np.ndarray:
     if gt.shape[1] == n_template:
         return gt
     n, m = round(gt.shape[1] ** 0.5), round(n_template ** 0.5)
-    return np.stack([_on_grid(g.reshape(n, n, 3), m) for g in gt])
+    return np.stack([resample_grid(g.reshape(n, n, 3), m) for g in gt])
 
 
 def main() -> None:

@@ -7,7 +7,7 @@ from saft.scene import load_scene
 from saft.scene.camera import look_at
 from saft.scene.frames import FrameSequence
 from saft.scene.scene import Scene
-from saft.synthetic.benchmark_scenes import _write_folder
+from saft.synthetic.benchmark_scenes import write_scene_folder
 from saft.synthetic.hanging_cloth import grid_template
 from saft.synthetic.mid_motion import template_at, write_mid_motion_scene
 
@@ -30,7 +30,7 @@ def test_write_mid_motion_scene_drops_frames_and_starts_from_the_ground_truth(tm
     mask = np.ones((n, 24, 32), dtype=np.float32)
     scene = Scene(name="s", template=tpl, camera=camera, frames=FrameSequence((), None, 32, 24), pinned=np.array([0]),
                   frame_dt=0.1, gravity=np.array([0.0, -9.81, 0.0]))
-    _write_folder(tmp_path / "s", scene, rgb, mask, [p.astype(np.float32) for p in positions], positions, {"x": 1})
+    write_scene_folder(tmp_path / "s", scene, rgb, mask, [p.astype(np.float32) for p in positions], positions, {"x": 1})
     out = write_mid_motion_scene(tmp_path / "s", tmp_path / "mid" / "s", 2)
     mid = load_scene(out)
     assert len(mid.frames) == 3 and mid.frame_dt == 0.1 and list(mid.pinned) == [0]

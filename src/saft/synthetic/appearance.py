@@ -22,7 +22,7 @@ from saft.scene.camera import Camera, look_at
 from saft.scene.frames import FrameSequence
 from saft.scene.mesh import QuadMesh
 from saft.scene.scene import Scene
-from saft.synthetic.benchmark_scenes import DONE_FILE, GRAVITY, BenchSceneSpec, _write_folder, path_trace, simulate
+from saft.synthetic.benchmark_scenes import DONE_FILE, GRAVITY, BenchSceneSpec, write_scene_folder, path_trace, simulate
 from saft.synthetic.fabrics import environment_map, fabric_maps
 from saft.synthetic.hanging_cloth import grid_template
 
@@ -212,5 +212,5 @@ def write_appearance_scene(folder, spec: AppearanceSceneSpec = AppearanceSceneSp
 
     rng = np.random.default_rng(spec.seed + 1)
     gt_points = [sample_surface(p, template.triangles, 4000, rng) for p in positions]
-    _write_folder(folder, scene, rgb, mask, gt_points, positions, info, extra=extra)
+    write_scene_folder(folder, scene, rgb, mask, gt_points, positions, info, extra=extra)
     return folder

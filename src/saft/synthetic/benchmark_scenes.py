@@ -87,7 +87,7 @@ def scene_names(scenarios=tuple(SCENARIOS)) -> list[str]:
 
 
 # --------------------------------------------------------------------------------------------- motion
-def _ramp(t: np.ndarray, rise: float) -> np.ndarray:
+def smooth_ramp(t: np.ndarray, rise: float) -> np.ndarray:
     """0 → 1 smoothly (smootherstep) over [0, rise] seconds."""
     s = np.clip(t / rise, 0.0, 1.0)
     return s * s * s * (s * (6 * s - 15) + 10)
@@ -101,7 +101,7 @@ def wind_field(vertices: np.ndarray, frames: int, frame_dt: float, peak: float, 
     x, y = vertices[None, :, 0], vertices[None, :, 1]
     span = float(np.ptp(vertices[:, :2], axis=0).max())
     ph = rng.uniform(0, 2 * np.pi, 4)
-    ramp = _ramp(t, 0.12)
+    ramp = smooth_ramp(t, 0.12)
     gust = 0.75 + 0.25 * np.sin(2 * np.pi * t / 0.45 + ph[0])
     wave = np.sin(2 * np.pi * (1.6 * t - x / (1.3 * span)) + ph[1]) * np.cos(np.pi * y / span + ph[2])
     a = np.zeros((frames - 1, len(vertices), 3))
@@ -121,7 +121,7 @@ def _tilted(template: QuadMesh, degrees: float) -> QuadMesh:
     return QuadMesh(v, template.quads, template.uvs)
 
 
-def _bezier(p0, p1, p2, s: np.ndarray) -> np.ndarray:
+def bezier(p0, p1, p2, s: np.ndarray) -> np.ndarray:
     s = s[:, None]
     return (1 - s) ** 2 * p0 + 2 * (1 - s) * s * p1 + s * s * p2
 
@@ -150,8 +150,9 @@ def simulate(scenario: str, spec: BenchSceneSpec, device="cpu") -> tuple[QuadMes
         sim_pins = np.append(top_row, corner)
         h = spec.size / 2
         t = np.arange(F) * dt
-        s = _ramp(t - 0.06, 0.8 * (F - 1) * dt)
-        path = _bezier(np.array([-h, -h, 0.0]), np.array([-h, -0.5 * h, 1.4 * h]), np.array([0.1 * h, 0.45 * h, 0.9 * h]), s)
+        s = smooth_ramp(t - 0.06, 0.8 * (F - 1) * dt)
+        path = bezier(np.array([-h, -h, 0.0]), np.array([-h, -0.5 * h, 1.4 * h]),
+                      np.array([0.1 * h, 0.45 * h, 0.9 * h]), s)
         targets = np.repeat(template.vertices[sim_pins][None], F, axis=0)
         targets[:, -1] = path
     f64 = dict(dtype=torch.float64, device=device)
@@ -221,7 +222,7 @@ def path_trace(template: QuadMesh, positions: np.ndarray, camera: Camera, maps, 
 
 
 # ------------------------------------------------------------------------------------------- writing
-def _write_folder(final: Path, scene: Scene, rgb, mask, gt_points, positions, info: dict, extra=None) -> None:
+def write_scene_folder(final: Path, scene: Scene, rgb, mask, gt_points, positions, info: dict, extra=None) -> None:
     """Write one scene folder into a temporary sibling and move it into place (no half-written folder);
     extra(tmp_folder), if given, writes more files into it first."""
     final.parent.mkdir(parents=True, exist_ok=True)
@@ -255,7 +256,7 @@ def write_scenario(root: str | Path, scenario: str, spec: BenchSceneSpec = Bench
         scene = Scene(name=name, template=template, camera=camera, frames=frames, texture=None,
                       pinned=held if variant == "pinned" else None, frame_dt=spec.frame_dt, gravity=GRAVITY)
         info = {"scenario": scenario, "variant": variant, "description": SCENARIOS[scenario], "spec": asdict(spec)}
-        _write_folder(root / name, scene, rgb, mask, gt_points, positions, info)
+        write_scene_folder(root / name, scene, rgb, mask, gt_points, positions, info)
         written.append(root / name)
     return written
 

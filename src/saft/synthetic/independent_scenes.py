@@ -46,7 +46,7 @@ from saft.scene.camera import Camera, look_at
 from saft.scene.frames import FrameSequence
 from saft.scene.mesh import QuadMesh
 from saft.scene.scene import Scene
-from saft.synthetic.benchmark_scenes import DONE_FILE, _bezier, _ramp, _write_folder, render_video
+from saft.synthetic.benchmark_scenes import DONE_FILE, bezier, smooth_ramp, write_scene_folder, render_video
 from saft.synthetic.hanging_cloth import grid_template
 from saft.synthetic.newton_cloth import NewtonClothParams, aero_forces, simulate_newton_cloth
 
@@ -123,7 +123,7 @@ def _wind_gust(late: float, peak: float, lateral: float, direction=(0.0, 0.0, 1.
     def wind(p: np.ndarray, t: float) -> np.ndarray:
         x, y = p[:, 0:1], p[:, 1:2]
         breeze = 0.35 * (1 + 0.3 * np.sin(2 * np.pi * (1.3 * t - 2.5 * x)))
-        g = _ramp(np.asarray(t - late), 0.15)
+        g = smooth_ramp(np.asarray(t - late), 0.15)
         wave = 1 + 0.35 * np.sin(2 * np.pi * (3.0 * t - 4.0 * x + 1.5 * y))
         w = (breeze + peak * g * wave) * d[None]
         w[:, 0:1] += lateral * g * np.sin(2 * np.pi * 2.2 * t)
@@ -146,7 +146,7 @@ def scenario(name: str, spec: IndependentSceneSpec) -> Scenario:
         def wind(p, t):
             x, y = p[:, 0], p[:, 1]
             w = np.zeros_like(p)
-            w[:, 0] = 3.0 * _ramp(np.asarray(t), 0.1)
+            w[:, 0] = 3.0 * smooth_ramp(np.asarray(t), 0.1)
             w[:, 2] = 1.2 * np.sin(2 * np.pi * (4.0 * t - 5.0 * x) + 3.0 * y)
             return w
         left = [(r, 0.0) for r in np.linspace(0, 1, 2 * spec.gt_grid)]
@@ -164,15 +164,15 @@ def scenario(name: str, spec: IndependentSceneSpec) -> Scenario:
         duration = (spec.frames - 1) / 30
 
         def path(t):
-            s = _ramp(np.atleast_1d(t - 0.06), 0.8 * duration)
-            return _bezier(np.array([-h, -h, 0.0]), np.array([-h, -0.5 * h, 1.4 * h]),
+            s = smooth_ramp(np.atleast_1d(t - 0.06), 0.8 * duration)
+            return bezier(np.array([-h, -h, 0.0]), np.array([-h, -0.5 * h, 1.4 * h]),
                            np.array([0.1 * h, 0.45 * h, 0.9 * h]), s)[0]
         breeze = lambda p, t: np.tile([0.0, 0.0, 0.2], (len(p), 1))  # noqa: E731
         return Scenario(flat, top, (1.0, 0.0), path, breeze, True, 30)
     raise ValueError(f"unknown scenario {name!r} (one of {', '.join(SCENARIOS)})")
 
 
-def _on_grid(field: np.ndarray, m: int) -> np.ndarray:
+def resample_grid(field: np.ndarray, m: int) -> np.ndarray:
     """Resample a field given on an n×n material grid (row 0 = top) onto an m×m grid: (m*m, C)."""
     n = field.shape[0]
     s = np.linspace(0, 1, n)
@@ -196,7 +196,8 @@ def meshes(sc: Scenario, spec: IndependentSceneSpec) -> tuple[QuadMesh, QuadMesh
     """(ground-truth mesh, template), both at the scenario's rest pose, with matching UVs."""
     gt = grid_template(spec.gt_grid, spec.size)
     tpl = grid_template(spec.grid, spec.size)
-    return (replace(gt, vertices=_on_grid(sc.rest, spec.gt_grid)), replace(tpl, vertices=_on_grid(sc.rest, spec.grid)))
+    return (replace(gt, vertices=resample_grid(sc.rest, spec.gt_grid)),
+            replace(tpl, vertices=resample_grid(sc.rest, spec.grid)))
 
 
 def _vertex_masses(mesh: QuadMesh, density: float) -> np.ndarray:
@@ -242,7 +243,7 @@ def simulate_matched(sc: Scenario, gt: QuadMesh, tpl: QuadMesh, gt_positions: np
     """saft's simulator on the template: positions (F, V_tpl, 3), driven like the independent cloth."""
     n, m = spec.gt_grid, spec.grid
     acc = felt_accelerations(gt, gt_positions, sc, spec)
-    wind = np.stack([_on_grid(a.reshape(n, n, 3), m) for a in acc])
+    wind = np.stack([resample_grid(a.reshape(n, n, 3), m) for a in acc])
     pins = _indices(sc.held, m, sc.clip)
     targets = None
     if sc.grab is not None:
@@ -305,7 +306,7 @@ def write_scenario(root: str | Path, name: str, spec: IndependentSceneSpec = Ind
                           pinned=held if variant == "pinned" else None, frame_dt=1.0 / sc.fps, gravity=GRAVITY)
             info = {"scenario": name, "simulator": sim, "variant": variant, "description": SCENARIOS[name],
                     "gt_mesh_grid": int(round(np.sqrt(len(mesh.vertices)))), "spec": _spec_json(spec)}
-            _write_folder(root / folder, scene, rgb, mask, gt_points, positions, info)
+            write_scene_folder(root / folder, scene, rgb, mask, gt_points, positions, info)
             written.append(root / folder)
     return written
 

@@ -19,8 +19,8 @@ import numpy as np
 
 from saft.scene import load_scene
 from saft.scene.native import read_json
-from saft.synthetic.benchmark_scenes import DONE_FILE, _write_folder
-from saft.synthetic.independent_scenes import _on_grid
+from saft.synthetic.benchmark_scenes import DONE_FILE, write_scene_folder
+from saft.synthetic.independent_scenes import resample_grid
 
 
 def template_at(gt_vertices: np.ndarray, grid: int) -> np.ndarray:
@@ -30,7 +30,7 @@ def template_at(gt_vertices: np.ndarray, grid: int) -> np.ndarray:
         raise ValueError(f"ground truth of {len(gt_vertices)} vertices is not a square grid")
     if n == grid:
         return np.asarray(gt_vertices, dtype=np.float64)
-    return _on_grid(np.asarray(gt_vertices, dtype=np.float64).reshape(n, n, 3), grid)
+    return resample_grid(np.asarray(gt_vertices, dtype=np.float64).reshape(n, n, 3), grid)
 
 
 def write_mid_motion_scene(source: str | Path, dest: str | Path, start: int) -> Path:
@@ -53,7 +53,7 @@ def write_mid_motion_scene(source: str | Path, dest: str | Path, start: int) -> 
     rgb, mask = scene.frames.load(range(start, n))
     gt_points = [np.load(source / "gt" / f"frame_{i:03d}.npy") for i in range(start, n)]
     mid = replace(scene, name=dest.name, template=template)
-    _write_folder(dest, mid, rgb, mask, gt_points, positions[start:], info)
+    write_scene_folder(dest, mid, rgb, mask, gt_points, positions[start:], info)
     return dest
 
 
