@@ -260,10 +260,8 @@ class DenseFactorSolver:
         with record_function("saft.dense.factorize"):
             self.stats.factorizations += 1
             A = self._dense(data)
-            info = 1
-            if self.factor32:
-                L, info = torch.linalg.cholesky_ex(A.float())
-            if int(info) != 0:
+            L, info = torch.linalg.cholesky_ex(A.float()) if self.factor32 else (None, None)
+            if info is None or int(info) != 0:  # float64: asked for, or float32 was not positive definite
                 L, info = torch.linalg.cholesky_ex(A)
             if int(info) != 0:
                 self.F = None
