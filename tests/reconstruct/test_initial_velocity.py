@@ -43,7 +43,7 @@ def test_a_uniform_field_is_the_same_per_vertex_velocity_and_moves_the_cloth():
 
 
 def test_v0_gets_gradients_full_and_windowed_agree_and_a_window_holds_it():
-    from saft.reconstruct.shape_phase import outside_window, restore_outside_window
+    from saft.reconstruct.window_hold import outside_window, restore_outside_window
 
     sim, state = _sim_and_state(ShapeConfig(lr_v0=0.1, window=2))
     p = state.params
