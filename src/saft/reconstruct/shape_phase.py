@@ -36,7 +36,7 @@ from saft.reconstruct.config import PhysicsConfig, ShapeConfig
 from saft.reconstruct.frame_schedule import FrameSchedule, window_first_frame
 from saft.reconstruct.context import PhaseContext
 from saft.reconstruct.force_field import affine_basis, total_accelerations
-from saft.reconstruct.initial_velocity import initial_velocity, seed_field_from_tracks, velocity_prior
+from saft.reconstruct.initial_velocity import initial_velocity, start_velocity, velocity_prior
 from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_loss
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
 from saft.reconstruct.step_guard import StepGuard
@@ -419,8 +419,8 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
               "anchor_log10": cfg.anchor_log10_range}
     with record_function("saft.shape.tracks"):
         tracks = shape_tracks(ctx, cfg, texture, sim.template)
-    if tracks is not None and state.epoch == 0 and state.params.v0_field is not None:
-        seed_field_from_tracks(state.params.v0_field, tracks, sim.template, ctx.camera, sim.frame_dt, sim.field_basis)
+    if state.epoch == 0 and state.params.v0_field is not None:   # seeded from the tracks, or dropped at rest
+        start_velocity(state.params, state.optimizer, sim, tracks, ctx.camera)
     if cfg.window > 0 and state.states is None:
         zeros = sim.template.new_zeros((n_frames,) + tuple(sim.template.shape))
         state.states = FrameStates(zeros.clone(), zeros.clone(), 1)
