@@ -123,10 +123,11 @@ def start_velocity(params, optimizer: ClippedAdam, sim, tracks: VertexTracks | N
     when the clip starts in motion; otherwise (or without tracks) v0 is dropped, params.v0_field = None and
     out of the optimizer, and the phase runs as with shape.lr_v0 = 0. `params`: ShapeParams, `sim`:
     ShapeSimulator (saft.reconstruct.shape_phase, which imports this module)."""
-    with torch.no_grad():
-        from_rest = sim.simulate(params, 2)[1]
-    motion = None if tracks is None else start_motion(tracks, sim.template, camera, sim.frame_dt, sim.field_basis,
-                                                      from_rest)
+    motion = None
+    if tracks is not None and tracks.points.shape[0] >= 2:
+        with torch.no_grad():
+            from_rest = sim.simulate(params, 2)[1]
+        motion = start_motion(tracks, sim.template, camera, sim.frame_dt, sim.field_basis, from_rest)
     if motion is not None and motion.moving:
         with torch.no_grad():
             params.v0_field.copy_(motion.field)
