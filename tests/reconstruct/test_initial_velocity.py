@@ -17,10 +17,10 @@ def _sim_and_state(cfg, frames=6):
     return sim, new_shape_state(frames, len(template), np.zeros(3), PhysicsConfig(), cfg, "cpu")
 
 
-def test_off_by_default_off_at_rate_zero_and_at_rest_at_first():
+def test_on_by_default_off_at_rate_zero_and_at_rest_at_first():
     sim, off = _sim_and_state(ShapeConfig(lr_v0=0.0))
     assert off.params.velocity(sim.field_basis) is None and "v0_field" not in off.params.tensors()
-    assert _sim_and_state(ShapeConfig())[1].params.v0_field is None
+    assert ShapeConfig().lr_v0 == 0.02 and _sim_and_state(ShapeConfig())[1].params.v0_field is not None
     sim, on = _sim_and_state(ShapeConfig(lr_v0=0.1))
     with torch.no_grad():
         assert torch.equal(sim.simulate(on.params, 4), sim.simulate(off.params, 4))
