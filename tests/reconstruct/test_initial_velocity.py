@@ -74,9 +74,9 @@ def test_a_checkpointed_state_restores_v0():
     assert torch.equal(back.params.v0_field, state.params.v0_field) and back.params.v0_field.requires_grad
 
 
-def test_field_from_tracks_recovers_an_in_plane_motion():
+def test_start_motion_recovers_an_in_plane_motion():
     from saft.reconstruct.force_field import affine_basis
-    from saft.reconstruct.initial_velocity import field_from_tracks
+    from saft.reconstruct.initial_velocity import start_motion
     from saft.reconstruct.tracks import VertexTracks, project
     from saft.scene.camera import look_at
     from saft.synthetic import grid_template
@@ -92,10 +92,10 @@ def test_field_from_tracks_recovers_an_in_plane_motion():
     moved = template + dt * initial_velocity(truth, basis)
     points = torch.stack([project(template, camera)[0], project(moved, camera)[0]])
     tracks = VertexTracks(points, torch.ones(2, len(template), dtype=torch.bool), 320.0)
-    got = field_from_tracks(tracks, template, camera, dt, basis, ridge=1e-6)
+    got = start_motion(tracks, template, camera, dt, basis, ridge=1e-6).field
     assert torch.allclose(got[:2, :2], truth[:2, :2], atol=0.02)
     tracks.valid[1] = False
-    assert field_from_tracks(tracks, template, camera, dt, basis) is None
+    assert start_motion(tracks, template, camera, dt, basis) is None
 
 
 def _hanging(frames=4):

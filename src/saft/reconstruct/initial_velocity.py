@@ -55,7 +55,7 @@ class StartMotion:
     """The tracks' step from frame 0 to 1 beyond what the physics from rest gives, and the affine velocity
     that explains it (image motions: mean over the tracks, pixels per frame)."""
 
-    field: torch.Tensor    # (4, 3) affine coefficients of v0 (field_from_tracks)
+    field: torch.Tensor    # (4, 3) affine coefficients of v0
     fitted_px: float       # the field's image motion over one frame
     rest_px: float         # what the field leaves of the step: the tracks' noise and non-affine motion
     median_px: float       # the clip's typical motion: median over the frames of the tracks' mean step
@@ -111,13 +111,6 @@ def start_motion(tracks: VertexTracks, template: torch.Tensor, camera: Camera, f
                        median)
 
 
-def field_from_tracks(tracks: VertexTracks, template: torch.Tensor, camera: Camera, frame_dt: float,
-                      basis: torch.Tensor, ridge: float = 1e-2) -> torch.Tensor | None:
-    """start_motion's field from the template (no physics): the (4, 3) coefficients, or None."""
-    motion = start_motion(tracks, template, camera, frame_dt, basis, ridge=ridge)
-    return None if motion is None else motion.field
-
-
 def start_velocity(params, optimizer: ClippedAdam, sim, tracks: VertexTracks | None, camera: Camera) -> StartMotion | None:
     """Before the shape phase's first epoch (v0 and the accelerations still 0): v0 := start_motion's field
     when the clip starts in motion; otherwise (or without tracks) v0 is dropped, params.v0_field = None and
@@ -142,5 +135,5 @@ def start_velocity(params, optimizer: ClippedAdam, sim, tracks: VertexTracks | N
     return motion
 
 
-__all__ = ["MIN_SHARE", "MIN_SNR", "StartMotion", "field_from_tracks", "initial_velocity", "start_motion",
+__all__ = ["MIN_SHARE", "MIN_SNR", "StartMotion", "initial_velocity", "start_motion",
            "start_velocity", "velocity_prior"]
