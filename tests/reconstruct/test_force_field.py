@@ -73,7 +73,7 @@ def test_a_uniform_field_moves_the_cloth_as_the_same_per_vertex_accelerations_do
 
 
 def test_the_field_gets_gradients_and_is_held_before_a_window():
-    from saft.reconstruct.shape_phase import outside_window, restore_outside_window
+    from saft.reconstruct.window_hold import outside_window, restore_outside_window
 
     sim, state = _sim_and_state(ShapeConfig(lr_field_accel=1.0, window=2))
     p = state.params

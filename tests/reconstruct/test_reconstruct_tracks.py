@@ -160,7 +160,8 @@ def test_a_windowed_step_leaves_the_accelerations_before_the_window():
     """Adam's momentum would move the accelerations of frames before the window (no gradient there): the
     windowed step restores them; the window's own accelerations and the global parameters move."""
     from saft.reconstruct.config import PhysicsConfig
-    from saft.reconstruct.shape_phase import new_shape_state, outside_window, restore_outside_window
+    from saft.reconstruct.shape_phase import new_shape_state
+    from saft.reconstruct.window_hold import outside_window, restore_outside_window
 
     state = new_shape_state(6, 9, np.array([0.0, -9.81, 0.0]), PhysicsConfig(), ShapeConfig(window=2), "cpu")
     params = state.params

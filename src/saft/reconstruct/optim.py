@@ -68,6 +68,11 @@ class ClippedAdam:
             self.optims[name].step()
         return norms
 
+    def drop(self, name: str) -> None:
+        """Stop optimizing the parameter `name` (its Adam, moments and clipping history go)."""
+        for d in (self.specs, self.optims, self.history, self.skipped):
+            d.pop(name, None)
+
     def set_lr_factor(self, factor: float) -> None:
         """Every learning rate := its initial value × factor."""
         for name, opt in self.optims.items():

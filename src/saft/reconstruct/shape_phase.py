@@ -36,11 +36,12 @@ from saft.reconstruct.config import PhysicsConfig, ShapeConfig
 from saft.reconstruct.frame_schedule import FrameSchedule, window_first_frame
 from saft.reconstruct.context import PhaseContext
 from saft.reconstruct.force_field import affine_basis, total_accelerations
-from saft.reconstruct.initial_velocity import initial_velocity, seed_field_from_tracks, velocity_prior
+from saft.reconstruct.initial_velocity import initial_velocity, start_velocity, velocity_prior
 from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_loss
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
 from saft.reconstruct.step_guard import StepGuard
 from saft.reconstruct.tracks import VertexTracks, compute_vertex_tracks, hidden_vertices, track_loss
+from saft.reconstruct.window_hold import outside_window, per_frame, restore_outside_window
 
 # Frames rendered per batch inside an epoch; the physics graph is kept, the render graphs are not. On a
 # GPU a batch of 8 fills the device; on a CPU one frame at a time is cheaper per frame (R1's 700 x 800,
@@ -299,37 +300,6 @@ def window_start(frames: int, epoch: int, final: bool, states: FrameStates | Non
     return start if start < states.frames else 0
 
 
-def outside_window(params: ShapeParams, start: int) -> list[torch.Tensor] | None:
-    """The accelerations a windowed epoch (start > 0) must leave as they are: those of the frames before the
-    window, with which the stored states were simulated. Without this, Adam's momentum keeps moving the
-    accelerations of frames that just left the window (by up to ~10 learning rates in all, with no gradient)
-    and the stored states drift from what a full pass gives (BENCHMARKS.md: 3.17 -> 2.05 mean CD2 on
-    bench_scaling's 50 frames). Y, B, S and C stay free: held to the full passes, they cost far more (14.6)
-    than the slight staleness of the states their small steps cause."""
-    if start <= 0:
-        return None
-    return [t[:start].detach().clone() for t in _per_frame(params)] + [t.detach().clone() for t in _initial(params)]
-
-
-def restore_outside_window(params: ShapeParams, start: int, keep: list[torch.Tensor] | None) -> None:
-    if keep is not None:
-        with torch.no_grad():
-            n = len(_per_frame(params))
-            for t, k in zip(_per_frame(params), keep[:n]):
-                t[:start] = k
-            for t, k in zip(_initial(params), keep[n:]):
-                t.copy_(k)
-
-
-def _initial(params: ShapeParams) -> list[torch.Tensor]:   # frame 0's state: held in windows, as _per_frame
-    return [] if params.v0_field is None else [params.v0_field]
-
-
-def _per_frame(params: ShapeParams) -> list[torch.Tensor]:
-    """The parameters indexed by frame transition."""
-    return [params.vertex_accel] + ([params.field_accel] if params.field_accel is not None else [])
-
-
 def along_ray_weight(cfg: ShapeConfig, sim: ShapeSimulator) -> float:
     """R_F's weight on the acceleration's component along the viewing ray: pins hold the depth, or nothing does."""
     return cfg.force_along_weight if sim.pinned is None else cfg.force_along_weight_pinned
@@ -449,8 +419,8 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
               "anchor_log10": cfg.anchor_log10_range}
     with record_function("saft.shape.tracks"):
         tracks = shape_tracks(ctx, cfg, texture, sim.template)
-    if tracks is not None and state.epoch == 0 and state.params.v0_field is not None:
-        seed_field_from_tracks(state.params.v0_field, tracks, sim.template, ctx.camera, sim.frame_dt, sim.field_basis)
+    if state.epoch == 0 and state.params.v0_field is not None:   # seeded from the tracks, or dropped at rest
+        start_velocity(state.params, state.optimizer, sim, tracks, ctx.camera)
     if cfg.window > 0 and state.states is None:
         zeros = sim.template.new_zeros((n_frames,) + tuple(sim.template.shape))
         state.states = FrameStates(zeros.clone(), zeros.clone(), 1)
@@ -463,7 +433,7 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
         if cfg.warm_start_new_frames and sched.just_added and frames - 1 >= 2:
             # Wind changes smoothly: the new transition starts from the last optimized one, not from zero.
             with torch.no_grad():
-                for t in _per_frame(params):
+                for t in per_frame(params):
                     t[frames - 2] = t[frames - 3]
         start = window_start(frames, state.epoch, sched.final, state.states, cfg)
         if cfg.center_vertex_accel and params.vertex_accel.numel() and start == 0:
