@@ -28,6 +28,14 @@ class AppearanceConfig:
     # grid) or "irradiance" (π·T / E0, E0 the frame-0 irradiance from the fitted env map, times a grey
     # log-gain grid: appearance.irradiance; the profiles' choice, BENCHMARKS "A physically divided diffuse")
     diffuse_shading: Literal["gain", "irradiance"] = "gain"
+    # diffuse_shading="irradiance": > 1: this many frames (evenly spaced, frame 0 among them) measure frame
+    # 0's specular in the texture, which is taken off it before the division: frame 0 beyond the per-texel
+    # median of the frames divided by their own irradiance under the fitted env map, re-measured every
+    # epoch (appearance.frame_specular); 0 = nothing taken off
+    frame_specular: int = 0
+    # frame_specular: only the part of frame 0's excess in the light's colour is taken off (the dichromatic
+    # split, appearance.frame_specular.light_coloured_part); the part in the cloth's own colour stays
+    frame_specular_dichromatic: bool = False
     clusters: int = 6                    # maps="guided": material clusters (k-means on the texture's colours)
     texture_smoothing: float = 0.0       # maps="guided": σ (texels) of the blur inside each cluster
     # maps="guided": a frame teaches the per-cluster detail share only if it repeats at least this fraction
@@ -98,6 +106,8 @@ class AppearanceConfig:
             bad("maps", "must be 'decoder', 'texels' or 'guided'")
         if self.diffuse_shading not in ("gain", "irradiance"):
             bad("diffuse_shading", "must be 'gain' or 'irradiance'")
+        if self.frame_specular < 0 or self.frame_specular == 1:
+            bad("frame_specular", "must be 0 (off) or >= 2 frames")
         if self.gain_grid < 1 or self.clusters < 1:
             bad("clusters", "gain_grid and clusters must be >= 1")
         if self.env_levels < 1 or (self.env_height >> (self.env_levels - 1)) < 1:
