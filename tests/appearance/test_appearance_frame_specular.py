@@ -130,20 +130,3 @@ def test_irradiance_maps_take_frame_0s_specular_off_the_texture_with_a_floor():
     assert model.state_dict().keys() == IrradianceMaps(np.full((16, 16, 3), 0.4, np.float32), e0, size=16,
                                                       gain_grid=2, clusters=1).state_dict().keys()
 
-
-def test_the_dichromatic_split_keeps_what_has_the_cloths_colour():
-    from saft.appearance.frame_specular import light_coloured_part, light_colour
-
-    light = light_colour(np.broadcast_to([1.0, 0.9, 0.8], (4, 8, 3)))
-    assert np.allclose(light, np.array([1.0, 0.9, 0.8]) / np.linalg.norm([1.0, 0.9, 0.8]))
-    red, gold = np.array([0.8, 0.1, 0.1]), np.array([0.95, 0.7, 0.3])
-    diffuse = np.stack([red, gold, red])
-    highlight = 0.2 * light
-    excess = np.stack([highlight,                      # a dielectric's highlight on red: all of it
-                       0.3 * gold,                     # a gold thread's glint: none of it
-                       0.1 * red + highlight])         # both: the light-coloured part
-    out = light_coloured_part(excess, diffuse, light)
-    assert np.allclose(out[0], highlight, atol=1e-9) and np.allclose(out[1], 0.0, atol=1e-9)
-    assert np.allclose(out[2], highlight, atol=1e-9)
-    # a cloth of the light's own colour cannot be split: its excess stays in the texture
-    assert np.allclose(light_coloured_part(highlight[None], light[None], light), 0.0)

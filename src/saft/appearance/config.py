@@ -33,9 +33,6 @@ class AppearanceConfig:
     # median of the frames divided by their own irradiance under the fitted env map, re-measured every
     # epoch (appearance.frame_specular); 0 = nothing taken off; the profiles' 32
     frame_specular: int = 0
-    # frame_specular: only the part of frame 0's excess in the light's colour is taken off (the dichromatic
-    # split, appearance.frame_specular.light_coloured_part); the part in the cloth's own colour stays
-    frame_specular_dichromatic: bool = False
     clusters: int = 6                    # maps="guided": material clusters (k-means on the texture's colours)
     texture_smoothing: float = 0.0       # maps="guided": σ (texels) of the blur inside each cluster
     # maps="guided": a frame teaches the per-cluster detail share only if it repeats at least this fraction

@@ -228,8 +228,7 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
             frames = np.arange(n_frames)
         env_eff = env(w)
         if stack is not None:
-            model.set_specular0(frame_specular(stack, env_eff.detach().cpu(),
-                                               dichromatic=cfg.frame_specular_dichromatic)[0])
+            model.set_specular0(frame_specular(stack, env_eff.detach().cpu())[0])
         maps = model(env_eff)   # IrradianceMaps: the diffuse depends on the env map too
         leaves = {k: v.detach().requires_grad_(True) for k, v in maps.items()}
         env_leaf = env_eff.detach().requires_grad_(True)

@@ -103,13 +103,13 @@ SPREAD_FLOOR = 0.01     # the least per-texel spread (log) assumed (a texel seen
 
 
 @torch.no_grad()
-def frame_specular(stack: FrameStack, env: torch.Tensor, min_seen: int = 3, significance: float = SIGNIFICANCE,
-                   dichromatic: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def frame_specular(stack: FrameStack, env: torch.Tensor, min_seen: int = 3,
+                   significance: float = SIGNIFICANCE) -> tuple[np.ndarray, np.ndarray]:
     """(S0 (G, G, 3), D0 (G, G, 3)) linear (module docstring): frame 0's specular beyond the median of the
     irradiance-normalised frames, S0 = max(0, I0 − D0·exp(significance·σ)), σ the texel's robust standard
     deviation over the frames (1.4826 × MAD of log(I_f / E_f) in luminance, at least SPREAD_FLOOR); and frame
     0's specular-free radiance D0. Texels that frame 0 does not see, or fewer than min_seen frames see, get
-    S0 = 0 and D0 = I0. dichromatic: only the excess's part in the light's colour (light_coloured_part)."""
+    S0 = 0 and D0 = I0."""
     e = stack.irradiance(env)
     nan = torch.tensor(float("nan"))
     ratio = torch.where(stack.seen[..., None], stack.radiance / e, nan).numpy()
@@ -122,32 +122,5 @@ def frame_specular(stack: FrameStack, env: torch.Tensor, min_seen: int = 3, sign
     i0 = stack.radiance[0].numpy()
     d0 = np.where(counted[..., None], e[0].numpy() * np.nan_to_num(median), i0)
     margin = np.exp(significance * np.maximum(np.nan_to_num(spread), SPREAD_FLOOR))[..., None]
-    excess = np.maximum(i0 - d0 * margin, 0.0)
-    if dichromatic:
-        excess = light_coloured_part(excess, d0, light_colour(env.numpy()))
-    return excess.astype(np.float32), d0.astype(np.float32)
+    return np.maximum(i0 - d0 * margin, 0.0).astype(np.float32), d0.astype(np.float32)
 
-
-def light_colour(env: np.ndarray) -> np.ndarray:
-    """(3,) unit colour of what a highlight reflects: the env map's pixels weighted by their luminance (the
-    sun's colour where there is one, the sky's mean where the light is even)."""
-    flat = np.asarray(env, dtype=np.float64).reshape(-1, 3)
-    c = (flat * flat.mean(-1, keepdims=True)).sum(0)
-    return c / max(float(np.linalg.norm(c)), 1e-12)
-
-
-def light_coloured_part(excess: np.ndarray, diffuse: np.ndarray, light: np.ndarray) -> np.ndarray:
-    """The dichromatic split (Shafer 1985) of each texel's excess (…, 3) into a·(diffuse's colour) +
-    b·(light's colour), a, b ≥ 0 (least squares): b·light, the part a dielectric's specular can be. What has the
-    cloth's own colour stays in the texture: a metal's highlight (tinted by its base colour, which is what
-    the diffuse map must hold for a metal) or shading that the Lambertian model of the frames missed."""
-    d = np.asarray(diffuse, dtype=np.float64)
-    d = d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-12)
-    ell = np.broadcast_to(light, d.shape)
-    dd, ll, dl = (d * d).sum(-1), (ell * ell).sum(-1), (d * ell).sum(-1)
-    rd, rl = (excess * d).sum(-1), (excess * ell).sum(-1)
-    det = dd * ll - dl * dl
-    a = np.where(det > 1e-9, (rd * ll - rl * dl) / np.maximum(det, 1e-9), 0.0)
-    b = np.where(det > 1e-9, (rl * dd - rd * dl) / np.maximum(det, 1e-9), 0.0)  # same colour: no split
-    b = np.where(a < 0, rl / np.maximum(ll, 1e-12), b)                            # a clipped at 0
-    return np.maximum(b, 0.0)[..., None] * ell
