@@ -16,6 +16,7 @@ import torch.nn.functional as Fnn
 from saft.appearance.config import AppearanceConfig
 from saft.appearance.detail import untrusted_detail_frames
 from saft.appearance.evidence import cluster_evidence, undetermined_note
+from saft.appearance.frame_specular import FRAME_GRID, FrameStack, frame_specular
 from saft.appearance.guided import GuidedMaps
 from saft.appearance.irradiance import FrameZeroIrradiance, IrradianceMaps
 from saft.appearance.mitsuba_backend import load_mitsuba
@@ -179,6 +180,11 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
         left_out = untrusted_detail_frames(model, verts, triangles, uvs, camera, rgb, mask, cfg.texture_smoothing,
                                            cfg.detail_trust)
     untrusted = set(left_out or ())
+    stack = None   # the frames in texture space that measure frame 0's specular (appearance.frame_specular)
+    if isinstance(model, IrradianceMaps) and cfg.frame_specular > 1:
+        picked = np.linspace(0, n_frames - 1, min(cfg.frame_specular, n_frames)).round().astype(int)
+        stack = FrameStack(verts, triangles, uvs, camera, rgb, mask, FRAME_GRID, (cfg.env_height, cfg.env_width),
+                           picked)
     if cfg.env_levels > 1:
         env = PyramidEnvironmentMap(cfg.env_height, cfg.env_width, cfg.env_levels, cfg.env_init, cfg.env_min).to(dev)
     else:
@@ -221,6 +227,8 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
         else:
             frames = np.arange(n_frames)
         env_eff = env(w)
+        if stack is not None:
+            model.set_specular0(frame_specular(stack, env_eff.detach().cpu())[0])
         maps = model(env_eff)   # IrradianceMaps: the diffuse depends on the env map too
         leaves = {k: v.detach().requires_grad_(True) for k, v in maps.items()}
         env_leaf = env_eff.detach().requires_grad_(True)

@@ -107,6 +107,8 @@ def irradiance_matrix(normals: np.ndarray, height: int, width: int, oversample: 
 # E0's texel grid: the shading varies at the mesh's scale (R1's 32×32 template: 2 texels per quad). Not
 # measurable on the appearance benchmark, whose frame 0 is flat (16, 32 and 64 gave the same E0).
 IRRADIANCE_GRID = 64
+# what is left of T_d at least after frame 0's specular is taken off (IrradianceMaps.diffuse_texture)
+SPECULAR_FLOOR = 0.1
 
 
 class FrameZeroIrradiance(nn.Module):
@@ -140,6 +142,9 @@ class IrradianceMaps(GuidedMaps):
         # than L starts clipped at 1, which the env map's own gradient (the render is too dark) undoes
         self.gain = nn.Parameter(torch.zeros(1, 1, g, g))
         self.irradiance = irradiance
+        # frame 0's specular in texture space (linear, on a coarse grid, upsampled), taken off T_d before the
+        # division when the fit measures it (appearance.frame_specular); zero: nothing taken off
+        self.register_buffer("specular0", torch.zeros(1, 3, 1, 1), persistent=False)
 
     def shading(self, env: torch.Tensor) -> torch.Tensor:
         """(S, S, 3) E0↑ / exp(g↑): what the texture is divided by (π aside)."""
@@ -149,8 +154,23 @@ class IrradianceMaps(GuidedMaps):
         gain = Fnn.interpolate(self.gain, size=(s, s), mode="bilinear", align_corners=False)[0, 0][..., None]
         return e0 * torch.exp(-gain)
 
+    @torch.no_grad()
+    def set_specular0(self, specular: np.ndarray) -> None:
+        """specular (G, G, 3) linear: frame 0's specular in texture space (appearance.frame_specular)."""
+        self.specular0 = torch.as_tensor(np.asarray(specular, dtype=np.float32)).permute(2, 0, 1)[None].to(
+            self.specular0.device)
+
+    def diffuse_texture(self) -> torch.Tensor:
+        """(S, S, 3) T_d less frame 0's specular, kept at least SPECULAR_FLOOR·T_d (an overestimated
+        highlight leaves no black hole)."""
+        t = self.detailed_texture()
+        if not bool(self.specular0.any()):
+            return t
+        s = Fnn.interpolate(self.specular0, size=(self.size, self.size), mode="bilinear", align_corners=False)
+        return torch.maximum(t - s[0].permute(1, 2, 0), SPECULAR_FLOOR * t)
+
     def forward(self, env: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         if env is None:
             raise ValueError("IrradianceMaps needs the env map: model(env)")
-        diffuse = (math.pi * self.detailed_texture() / self.shading(env)).clamp(0.0, 1.0)
+        diffuse = (math.pi * self.diffuse_texture() / self.shading(env)).clamp(0.0, 1.0)
         return {"diffuse": diffuse, **self.material_maps()}
