@@ -346,14 +346,15 @@ def render_appearance(result: AppearanceResult, vertices, triangles, uvs, camera
 
 
 # ---------------------------------------------------------------------------------------------- output
-def _write_exr(path: Path, image: np.ndarray) -> None:
+def write_exr(path: Path, image: np.ndarray) -> None:
     """Write a float32 RGB EXR atomically (Mitsuba's Bitmap writer: no extra Python dependency)."""
     mi = load_mitsuba("cpu")
     with atomic_path(path) as tmp:
         mi.Bitmap(np.ascontiguousarray(image, dtype=np.float32)).write(str(tmp))
 
 
-def _read_exr(path: Path) -> np.ndarray:
+def read_exr(path: Path) -> np.ndarray:
+    """A float32 RGB EXR as an array (Mitsuba's Bitmap reader)."""
     mi = load_mitsuba("cpu")
     return np.array(mi.Bitmap(str(path)), dtype=np.float32)
 
@@ -379,7 +380,7 @@ def save_appearance(result: AppearanceResult, out_dir) -> dict[str, Path]:
     write_image(paths["diffuse"], linear_to_srgb(torch.as_tensor(result.diffuse)).numpy())
     write_image(paths["roughness"], result.roughness)
     write_image(paths["metallic"], result.metallic)
-    _write_exr(paths["envmap"], result.envmap)
+    write_exr(paths["envmap"], result.envmap)
     write_image(paths["envmap_preview"], env_preview(result.envmap))
     summary = {"config": result.config.to_dict(), "losses": result.losses, "seconds": result.seconds,
                "cpu_seconds": result.cpu_seconds}
@@ -401,7 +402,7 @@ def load_appearance(out_dir) -> AppearanceResult:
         diffuse=srgb_to_linear(read_image(mat / "diffuse.png")[..., :3]),
         roughness=np.maximum(read_image(mat / "roughness.png")[..., 0], cfg.min_roughness),
         metallic=read_image(mat / "metallic.png")[..., 0],
-        envmap=_read_exr(mat / "envmap.exr")[..., :3],
+        envmap=read_exr(mat / "envmap.exr")[..., :3],
         losses=list(summary.get("losses", [])),
         config=cfg,
         seconds=float(summary.get("seconds", 0.0)),

@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from saft.appearance.detail import project_to_texture, texel_triangles
-from saft.appearance.irradiance import _linear_weights, env_direction, texel_normals
+from saft.appearance.irradiance import linear_weights, env_direction, texel_normals
 from saft.appearance.params import srgb_to_linear
 from saft.scene.camera import Camera
 
@@ -59,8 +59,8 @@ def sh9_irradiance_projection(height: int, width: int, oversample: int = 2) -> n
     u = (np.arange(nu) + 0.5) / nu
     y = sh9_basis(env_direction(theta[:, None], u[None, :]))                      # (nt, nu, 9)
     y = y * (np.sin(theta) * (math.pi / nt) * (2.0 * math.pi / nu))[:, None, None]
-    w_theta = _linear_weights(theta / math.pi * (height - 1), height, False)      # (nt, H)
-    w_u = _linear_weights(u * width - 0.5, width, True)                           # (nu, W)
+    w_theta = linear_weights(theta / math.pi * (height - 1), height, False)      # (nt, H)
+    w_u = linear_weights(u * width - 0.5, width, True)                           # (nu, W)
     p = np.einsum("th,tuk,uw->khw", w_theta, y, w_u).reshape(9, -1)
     return p * np.repeat(_A, (1, 3, 5))[:, None]
 

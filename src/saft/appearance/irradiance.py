@@ -68,7 +68,7 @@ def env_direction(theta, u):
     return np.stack([s * np.sin(2 * math.pi * u), np.cos(theta), -s * np.cos(2 * math.pi * u)], -1)
 
 
-def _linear_weights(x: np.ndarray, n: int, periodic: bool) -> np.ndarray:
+def linear_weights(x: np.ndarray, n: int, periodic: bool) -> np.ndarray:
     """(len(x), n): the linear-interpolation weights of samples at continuous pixel positions x."""
     x0 = np.floor(x).astype(np.int64)
     if not periodic:
@@ -91,8 +91,8 @@ def irradiance_matrix(normals: np.ndarray, height: int, width: int, oversample: 
     u = (np.arange(nu) + 0.5) / nu
     d = env_direction(theta[:, None], u[None, :]).reshape(-1, 3)          # (nt·nu, 3)
     d_omega = (np.sin(theta) * (math.pi / nt) * (2 * math.pi / nu))[:, None].repeat(nu, 1).reshape(-1)
-    w_theta = torch.as_tensor(_linear_weights(theta / math.pi * (height - 1), height, False))   # (nt, H)
-    w_u = torch.as_tensor(_linear_weights(u * width - 0.5, width, True))                        # (nu, W)
+    w_theta = torch.as_tensor(linear_weights(theta / math.pi * (height - 1), height, False))   # (nt, H)
+    w_u = torch.as_tensor(linear_weights(u * width - 0.5, width, True))                        # (nu, W)
     d_t = torch.as_tensor(d)
     dw = torch.as_tensor(d_omega)
     n_t = torch.as_tensor(np.asarray(normals, dtype=np.float64).reshape(-1, 3))

@@ -36,7 +36,7 @@ import torch
 import torch.nn.functional as Fnn
 
 from saft.appearance.detail import texel_triangles
-from saft.appearance.fit import _read_exr, _write_exr
+from saft.appearance.fit import read_exr, write_exr
 from saft.appearance.params import linear_to_srgb, srgb_to_linear
 from saft.appearance.renderer import ClothRenderer
 from saft.errors import SaftInputError
@@ -68,8 +68,8 @@ def write_appearance_ground_truth(folder, base_color, roughness, metallic, env_v
     write_image(folder / "base_color.png", linear_to_srgb(torch.as_tensor(base_color)).numpy())
     write_image(folder / "roughness.png", roughness)
     write_image(folder / "metallic.png", metallic)
-    _write_exr(folder / "envmap_video.exr", env_video)
-    _write_exr(folder / "envmap_unseen.exr", env_unseen)
+    write_exr(folder / "envmap_video.exr", env_video)
+    write_exr(folder / "envmap_unseen.exr", env_unseen)
     atomic_write_json(folder / "appearance_gt.json", info)
     return folder
 
@@ -85,8 +85,8 @@ def read_appearance_ground_truth(scene_folder) -> AppearanceGroundTruth | None:
         raise SaftInputError(folder / "appearance_gt.json", f"not JSON ({exc})") from None
     return AppearanceGroundTruth(srgb_to_linear(read_image(folder / "base_color.png")[..., :3]),
                                  read_image(folder / "roughness.png")[..., 0], read_image(folder / "metallic.png")[..., 0],
-                                 _read_exr(folder / "envmap_video.exr")[..., :3],
-                                 _read_exr(folder / "envmap_unseen.exr")[..., :3], info)
+                                 read_exr(folder / "envmap_video.exr")[..., :3],
+                                 read_exr(folder / "envmap_unseen.exr")[..., :3], info)
 
 
 def texture_baseline(texture_srgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -28,7 +28,7 @@ from saft.physics.energy import LN10, ElementEval  # noqa: F401 (ElementEval: te
 from saft.physics.finite import FiniteChecks, check_finite
 from saft.physics.kernels import StepKernels
 from saft.physics.factor_cache import FactorCache
-from saft.physics.solver import SolveStats, _csr
+from saft.physics.solver import SolveStats, sparse_csr
 from saft.physics.solver_choice import DENSE_SOLVERS, SOLVERS, solver_for  # noqa: F401 (DENSE_SOLVERS, SOLVERS: API)
 from saft.physics.topology import ClothTopology
 
@@ -174,7 +174,7 @@ class _Sim:
             return torch.from_numpy(M @ vec.numpy())
         crow = torch.as_tensor(t.csr_indptr, device=t.device)
         col = torch.as_tensor(t.csr_indices, device=t.device)
-        return _csr(crow, col, data, 3 * self.V) @ vec
+        return sparse_csr(crow, col, data, 3 * self.V) @ vec
 
     def lin_solve(self, solver, data, b, guess):
         if self.use_numpy:

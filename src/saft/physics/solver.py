@@ -42,7 +42,8 @@ from saft.physics import pcg_numba as _pn
 from saft.physics.factor_cache import FactorCache
 
 
-def _csr(crow, col, data, n):
+def sparse_csr(crow, col, data, n):
+    """The n × n torch sparse CSR matrix of the arrays (crow, col, data), built without its invariant check."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # "sparse CSR is beta" / invariant-check notices
         return torch.sparse_csr_tensor(crow, col, data, size=(n, n), check_invariants=False)
@@ -368,7 +369,7 @@ class JacobiCGSolver:
         self.stats = stats if stats is not None else SolveStats()
 
     def matrix(self, data: torch.Tensor):
-        return _csr(self.crow, self.col, data, self.n)
+        return sparse_csr(self.crow, self.col, data, self.n)
 
     def solve(self, data: torch.Tensor, b: torch.Tensor, x0: torch.Tensor | None = None) -> torch.Tensor:
         self.stats.solves += 1
