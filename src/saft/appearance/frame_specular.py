@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from saft.appearance.detail import project_to_texture, texel_triangles
-from saft.appearance.irradiance import linear_weights, env_direction, texel_normals
+from saft.appearance.irradiance import env_quadrature, texel_normals
 from saft.appearance.params import srgb_to_linear
 from saft.scene.camera import Camera
 
@@ -52,15 +52,10 @@ def sh9_basis(directions) -> np.ndarray:
 
 def sh9_irradiance_projection(height: int, width: int, oversample: int = 2) -> np.ndarray:
     """(9, height·width) P with P @ env.reshape(-1, 3) = the irradiance coefficients Â_l · L_lm (9, 3) of a
-    lat-long env map in Mitsuba's convention (appearance.irradiance; midpoint rule on a grid `oversample`
-    times finer, bilinear lookup), so that E(n) = sh9_basis(n) @ (P @ env)."""
-    nt, nu = oversample * (height - 1), oversample * width
-    theta = (np.arange(nt) + 0.5) * math.pi / nt
-    u = (np.arange(nu) + 0.5) / nu
-    y = sh9_basis(env_direction(theta[:, None], u[None, :]))                      # (nt, nu, 9)
-    y = y * (np.sin(theta) * (math.pi / nt) * (2.0 * math.pi / nu))[:, None, None]
-    w_theta = linear_weights(theta / math.pi * (height - 1), height, False)      # (nt, H)
-    w_u = linear_weights(u * width - 0.5, width, True)                           # (nu, W)
+    lat-long env map in Mitsuba's convention (appearance.irradiance.env_quadrature's midpoint rule and bilinear
+    lookup), so that E(n) = sh9_basis(n) @ (P @ env)."""
+    d, row_omega, w_theta, w_u = env_quadrature(height, width, oversample)
+    y = sh9_basis(d) * row_omega[:, None, None]                                  # (nt, nu, 9)
     p = np.einsum("th,tuk,uw->khw", w_theta, y, w_u).reshape(9, -1)
     return p * np.repeat(_A, (1, 3, 5))[:, None]
 

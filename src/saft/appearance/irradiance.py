@@ -81,20 +81,27 @@ def linear_weights(x: np.ndarray, n: int, periodic: bool) -> np.ndarray:
     return w
 
 
-def irradiance_matrix(normals: np.ndarray, height: int, width: int, oversample: int = 2,
-                      chunk: int = 64) -> torch.Tensor:
-    """(N, height·width) float32 M with E(n_k) = M[k] @ env.reshape(-1, 3) for unit normals (N, 3):
-    ∫ w_p(ω) max(0, n·ω) dω by the midpoint rule on oversample·(height − 1) × oversample·width cells
-    (module docstring: Mitsuba's lat-long lookup)."""
+def env_quadrature(height: int, width: int, oversample: int = 2):
+    """The midpoint rule over the sphere on oversample·(height − 1) × oversample·width cells of the lat-long
+    map (module docstring: Mitsuba's lookup): the cells' directions (nt, nu, 3), the solid angle of a cell
+    in each row (nt,), and the bilinear weights from the cells to the env map's rows (nt, H) and columns
+    (nu, W)."""
     nt, nu = oversample * (height - 1), oversample * width
     theta = (np.arange(nt) + 0.5) * math.pi / nt
     u = (np.arange(nu) + 0.5) / nu
-    d = env_direction(theta[:, None], u[None, :]).reshape(-1, 3)          # (nt·nu, 3)
-    d_omega = (np.sin(theta) * (math.pi / nt) * (2 * math.pi / nu))[:, None].repeat(nu, 1).reshape(-1)
-    w_theta = torch.as_tensor(linear_weights(theta / math.pi * (height - 1), height, False))   # (nt, H)
-    w_u = torch.as_tensor(linear_weights(u * width - 0.5, width, True))                        # (nu, W)
-    d_t = torch.as_tensor(d)
-    dw = torch.as_tensor(d_omega)
+    return (env_direction(theta[:, None], u[None, :]), np.sin(theta) * (math.pi / nt) * (2 * math.pi / nu),
+            linear_weights(theta / math.pi * (height - 1), height, False), linear_weights(u * width - 0.5, width, True))
+
+
+def irradiance_matrix(normals: np.ndarray, height: int, width: int, oversample: int = 2,
+                      chunk: int = 64) -> torch.Tensor:
+    """(N, height·width) float32 M with E(n_k) = M[k] @ env.reshape(-1, 3) for unit normals (N, 3):
+    ∫ w_p(ω) max(0, n·ω) dω by env_quadrature's midpoint rule."""
+    d, row_omega, w_theta, w_u = env_quadrature(height, width, oversample)
+    nt, nu = d.shape[:2]
+    d_t = torch.as_tensor(d.reshape(-1, 3))                                  # (nt·nu, 3)
+    dw = torch.as_tensor(np.repeat(row_omega, nu))
+    w_theta, w_u = torch.as_tensor(w_theta), torch.as_tensor(w_u)           # (nt, H), (nu, W)
     n_t = torch.as_tensor(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
     out = torch.empty(len(n_t), height * width, dtype=torch.float32)   # float64 only chunk by chunk
     for s in range(0, len(n_t), chunk):

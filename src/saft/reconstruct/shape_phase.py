@@ -240,8 +240,9 @@ class ShapeSimulator:
         S = self.phys.substeps
         n = num_frames - start
         x0 = self.template if x0 is None else x0
-        v0 = (params.velocity(self.field_basis) if start == 0 else None) if v0 is None else v0
-        v0 = torch.zeros_like(x0) if v0 is None else v0
+        if v0 is None:   # from frame 0: the learned velocity (None when not learned); later: at rest
+            v0 = params.velocity(self.field_basis) if start == 0 else None
+            v0 = torch.zeros_like(x0) if v0 is None else v0
         a_sub = params.accelerations(self.field_basis, start, num_frames - 1).repeat_interleave(S, dim=0)
         pos = rollout(self.topology, x0, v0, self._physics(params, a_sub), num_frames=(n - 1) * S + 1, substeps=1,
                       frame_dt=self.frame_dt / S, pinned=self.pinned, hessian=self.phys.hessian,

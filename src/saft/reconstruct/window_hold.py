@@ -20,25 +20,27 @@ def initial(params) -> list[torch.Tensor]:
     return [] if params.v0_field is None else [params.v0_field]
 
 
-def outside_window(params, start: int) -> list[torch.Tensor] | None:
+def outside_window(params, start: int) -> tuple[list[torch.Tensor], list[torch.Tensor]] | None:
     """The accelerations a windowed epoch (start > 0) must leave as they are: those of the frames before the
     window, with which the stored states were simulated. Without this, Adam's momentum keeps moving the
     accelerations of frames that just left the window (by up to ~10 learning rates in all, with no gradient)
     and the stored states drift from what a full pass gives (BENCHMARKS.md: 3.17 -> 2.05 mean CD2 on
     bench_scaling's 50 frames). Y, B, S and C stay free: held to the full passes, they cost far more (14.6)
-    than the slight staleness of the states their small steps cause."""
+    than the slight staleness of the states their small steps cause. Returned as (per_frame's rows before
+    the window, initial's tensors)."""
     if start <= 0:
         return None
-    return [t[:start].detach().clone() for t in per_frame(params)] + [t.detach().clone() for t in initial(params)]
+    return [t[:start].detach().clone() for t in per_frame(params)], [t.detach().clone() for t in initial(params)]
 
 
-def restore_outside_window(params, start: int, keep: list[torch.Tensor] | None) -> None:
+def restore_outside_window(params, start: int,
+                           keep: tuple[list[torch.Tensor], list[torch.Tensor]] | None) -> None:
     if keep is not None:
+        frames, first = keep
         with torch.no_grad():
-            n = len(per_frame(params))
-            for t, k in zip(per_frame(params), keep[:n]):
+            for t, k in zip(per_frame(params), frames):
                 t[:start] = k
-            for t, k in zip(initial(params), keep[n:]):
+            for t, k in zip(initial(params), first):
                 t.copy_(k)
 
 
