@@ -152,6 +152,7 @@ class IrradianceMaps(GuidedMaps):
         # frame 0's specular in texture space (linear, on a coarse grid, upsampled), taken off T_d before the
         # division when the fit measures it (appearance.frame_specular); zero: nothing taken off
         self.register_buffer("specular0", torch.zeros(1, 3, 1, 1), persistent=False)
+        self.has_specular0 = False  # decided on the host when set: no device sync per render (issue 27)
 
     def shading(self, env: torch.Tensor) -> torch.Tensor:
         """(S, S, 3) E0↑ / exp(g↑): what the texture is divided by (π aside)."""
@@ -164,14 +165,15 @@ class IrradianceMaps(GuidedMaps):
     @torch.no_grad()
     def set_specular0(self, specular: np.ndarray) -> None:
         """specular (G, G, 3) linear: frame 0's specular in texture space (appearance.frame_specular)."""
-        self.specular0 = torch.as_tensor(np.asarray(specular, dtype=np.float32)).permute(2, 0, 1)[None].to(
-            self.specular0.device)
+        specular = np.asarray(specular, dtype=np.float32)
+        self.specular0 = torch.as_tensor(specular).permute(2, 0, 1)[None].to(self.specular0.device)
+        self.has_specular0 = bool(specular.any())
 
     def diffuse_texture(self) -> torch.Tensor:
         """(S, S, 3) T_d less frame 0's specular, kept at least SPECULAR_FLOOR·T_d (an overestimated
         highlight leaves no black hole)."""
         t = self.detailed_texture()
-        if not bool(self.specular0.any()):
+        if not self.has_specular0:
             return t
         s = Fnn.interpolate(self.specular0, size=(self.size, self.size), mode="bilinear", align_corners=False)
         return torch.maximum(t - s[0].permute(1, 2, 0), SPECULAR_FLOOR * t)
