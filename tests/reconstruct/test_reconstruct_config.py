@@ -93,3 +93,28 @@ def test_physics_hessian_reaches_the_simulator():
     assert torch.isfinite(runs["exact"]).all()
     assert (runs["exact"] - runs["projected"]).abs().max() > 1e-6
 
+
+
+def test_physics_rest_shape_reaches_the_simulator():
+    import math
+
+    import numpy as np
+    import torch
+
+    from saft.reconstruct.shape_phase import ShapeSimulator
+    from saft.synthetic.hanging_cloth import grid_template
+
+    with pytest.raises(SaftInputError, match="physics.rest_shape must be one of"):
+        load_config(SaftConfig, None, ['physics.rest_shape="curved"'])
+    template = grid_template(6, 0.2)
+    x0 = torch.as_tensor(template.vertices, dtype=torch.float64).clone()
+    x0[:, 2] += 0.03 * torch.sin(20 * x0[:, 1])  # billowed: the template is not flat
+    angles = {}
+    for shape in ("template", "flat"):
+        cfg = load_config(SaftConfig, None, [f'physics.rest_shape="{shape}"'])
+        sim = ShapeSimulator(x0, template.quads, cfg.physics, 0.02, None)
+        t = sim.topology
+        angles[shape] = t.rest_angle[t.is_bend].numpy()
+    assert SaftConfig().physics.rest_shape == "template"
+    assert angles["template"].max() > math.acos(0.99) + 0.01
+    assert np.allclose(angles["flat"], math.acos(0.99), atol=1e-9)

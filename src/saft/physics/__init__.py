@@ -2,12 +2,14 @@
 
 Public API
 ----------
-``ClothTopology.from_quads(vertices, quads, density=0.1, *, device=None, dtype=torch.float64)``
+``ClothTopology.from_quads(vertices, quads, density=0.1, *, device=None, dtype=torch.float64, rest_shape="template")``
 ``ClothTopology.from_mesh(quad_mesh, density=0.1)``; ``topology.to(device, dtype)``
     Stretch springs on the unique quad edges (rest lengths L0); a hinge (n1, v, n2) for every vertex v and
     every pair of its quad-edge neighbours, rest angle theta0 = arccos(0.99 e1_hat . e2_hat) with
     e1 = v - n1, e2 = n2 - v, bending if theta0 < 45 deg else shearing; lumped masses area/3 * density
     from the quads split (a,b,c), (a,c,d); the fixed CSR pattern of the 3V x 3V system matrix.
+    rest_shape="flat": the rest angles of the template flattened (each hinge's edges projected on the
+    tangent plane at its vertex: straight bend hinges, in-surface shear angles); rest lengths unchanged.
 
 ``deformation_energy(x, topology, log10_Y, log10_B, log10_S, per_term=False)``
     E_Y + E_B + E_S (or the three terms) for x of shape (..., V, 3); plain autograd, batched over frames;

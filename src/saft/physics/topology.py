@@ -16,6 +16,7 @@ import torch
 ARCCOS_GUARD = 0.99  # theta = arccos(0.99 * e1_hat . e2_hat) keeps arccos differentiable (REFERENCE.md)
 BEND_THRESHOLD_RAD = math.pi / 4.0  # rest angle < 45 deg -> bending hinge, else shearing hinge
 DEFAULT_DENSITY = 0.1  # kg / m^2 (paper, supplementary "Mass")
+REST_SHAPES = ("template", "flat")
 
 
 @dataclass(frozen=True)
@@ -26,7 +27,10 @@ class ClothTopology:
       edges     (E, 2) int64   stretch springs on the unique quad edges (i < j)
       rest_len  (E,)           template edge lengths L0
       hinges    (H, 3) int64   (n1, v, n2): vertex v and a pair of its quad-edge neighbours
-      rest_angle (H,)          theta0 = arccos(0.99 * e1_hat . e2_hat), e1 = v - n1, e2 = n2 - v
+      rest_angle (H,)          theta0 = arccos(0.99 * e1_hat . e2_hat), e1 = v - n1, e2 = n2 - v; with
+                               rest_shape="flat", e1, e2 projected on the plane normal to v's vertex normal
+                               first (``flat_hinge_cosines``: the template flattened, its normal curvature
+                               taken out, its in-surface angles kept)
       is_bend   (H,) bool      theta0 < 45 deg (bending, stiffness B), else shearing (stiffness S)
       bend_w    (H,)           1.0 for bending hinges, 0.0 for shearing hinges (same as is_bend, float)
       mass      (V,)           lumped masses: each triangle gives area/3 to its corners, times density
@@ -95,8 +99,15 @@ class ClothTopology:
         *,
         device: torch.device | str | None = None,
         dtype: torch.dtype = torch.float64,
+        rest_shape: str = "template",
     ) -> "ClothTopology":
-        """Build the topology of any quad mesh (boundaries and irregular vertices included)."""
+        """Build the topology of any quad mesh (boundaries and irregular vertices included).
+
+        ``rest_shape``: "template" (the rest angles are the template's own) or "flat" (the template's
+        hinges flattened, ``flat_hinge_cosines``; rest lengths are the template's edge lengths either way).
+        """
+        if rest_shape not in REST_SHAPES:
+            raise ValueError(f"rest_shape must be one of {REST_SHAPES}, not {rest_shape!r}")
         verts = _as_numpy(vertices).astype(np.float64).reshape(-1, 3)
         quads = _as_numpy(quads).astype(np.int64).reshape(-1, 4)
         V = verts.shape[0]
@@ -121,11 +132,10 @@ class ClothTopology:
                 for j in range(i + 1, len(nb)):
                     hinge_rows.append((nb[i], v, nb[j]))
         hinges = np.asarray(hinge_rows, dtype=np.int64).reshape(-1, 3)
-        e1 = verts[hinges[:, 1]] - verts[hinges[:, 0]]
-        e2 = verts[hinges[:, 2]] - verts[hinges[:, 1]]
-        q = np.einsum("ij,ij->i", e1, e2) / np.maximum(
-            np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1), 1e-300
-        )
+        if rest_shape == "flat":
+            q = flat_hinge_cosines(verts, quads, hinges)
+        else:
+            q = _cosines(verts[hinges[:, 1]] - verts[hinges[:, 0]], verts[hinges[:, 2]] - verts[hinges[:, 1]])
         rest_angle = np.arccos(ARCCOS_GUARD * np.clip(q, -1.0, 1.0))
         is_bend = rest_angle < BEND_THRESHOLD_RAD
 
@@ -197,6 +207,33 @@ class ClothTopology:
     @property
     def nnz(self) -> int:
         return int(self.csr_indices.shape[0])
+
+
+def _cosines(e1: np.ndarray, e2: np.ndarray) -> np.ndarray:
+    return np.einsum("ij,ij->i", e1, e2) / np.maximum(np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1), 1e-300)
+
+
+def vertex_normals(verts: np.ndarray, quads: np.ndarray) -> np.ndarray:
+    """(V, 3) unit area-weighted normals of the triangulation (a,b,c), (a,c,d)."""
+    tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]], axis=0)
+    fn = np.cross(verts[tris[:, 1]] - verts[tris[:, 0]], verts[tris[:, 2]] - verts[tris[:, 0]])
+    n = np.zeros_like(verts)
+    for k in range(3):
+        np.add.at(n, tris[:, k], fn)
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+
+
+def flat_hinge_cosines(verts: np.ndarray, quads: np.ndarray, hinges: np.ndarray) -> np.ndarray:
+    """cos of each hinge's angle in the template flattened: its edges e1 = v - n1, e2 = n2 - v projected on
+    the tangent plane at v (normal to v's vertex normal). A curved template's bend hinges become straight (the
+    normal curvature is what the projection removes), its shear hinges keep their in-surface angles; on a flat
+    template nothing changes (up to rounding)."""
+    n = vertex_normals(verts, quads)[hinges[:, 1]]
+    e1 = verts[hinges[:, 1]] - verts[hinges[:, 0]]
+    e2 = verts[hinges[:, 2]] - verts[hinges[:, 1]]
+    e1 = e1 - np.einsum("ij,ij->i", e1, n)[:, None] * n
+    e2 = e2 - np.einsum("ij,ij->i", e2, n)[:, None] * n
+    return _cosines(e1, e2)
 
 
 def _as_numpy(a) -> np.ndarray:

@@ -56,6 +56,11 @@ class PhysicsConfig:
     # Element Hessians in the implicit step: "projected" (each clamped to PSD: the system is always positive
     # definite) or "exact" (the reference's; may be indefinite when the cloth is compressed).
     hessian: Literal["projected", "exact"] = "projected"
+    # The shape the cloth springs back to: "template" (the rest angles are the template's own hinge angles)
+    # or "flat" (the template flattened: each hinge's edges projected on the tangent plane at its vertex, so
+    # a billowed frame 0 of a clip that starts mid-motion is not taken as the cloth's rest shape; woven cloth
+    # is flat at rest). Rest lengths are the template's edge lengths either way (issue 29).
+    rest_shape: Literal["template", "flat"] = "template"
     log10_Y_init: float = DEFAULT_LOG10_Y
     log10_B_init: float = DEFAULT_LOG10_B
     log10_S_init: float = DEFAULT_LOG10_S

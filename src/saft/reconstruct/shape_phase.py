@@ -214,7 +214,8 @@ class ShapeSimulator:
         self.frame_dt = frame_dt
         self.template = template
         self.topology = ClothTopology.from_quads(template.detach().cpu().numpy(), quads, density=phys.density,
-                                                 device=template.device, dtype=template.dtype)
+                                                 device=template.device, dtype=template.dtype,
+                                                 rest_shape=phys.rest_shape)
         self.pinned = None if pinned is None or len(pinned) == 0 else torch.as_tensor(pinned, device=template.device)
         self.mean_edge_length = float(self.topology.rest_len.mean())
         self.field_basis = affine_basis(template.detach())
