@@ -43,6 +43,15 @@ class AppearanceConfig:
     # leave no frame out (the same fit). 0.75: plaid 20.76, 30.18 / 31.50, set on plaid alone, not taken
     # (BENCHMARKS.md, issue 28, "Which frames may teach the detail share")
     detail_trust: float = 0.0
+    # > 0: a per-frame correction of the shading normals is learnt with the maps (appearance.normals): a
+    # tangent offset on a normal_grid × normal_grid bilinear lattice over the UV square, at normal_keys
+    # keyframes in time (0 = one per frame) linearly interpolated, zero at frame 0; rate lr_normals, and
+    # lambda_normals times the mean squared offset pulls it towards the meshes' own normals. For saft's
+    # own motion, whose normals are off by 5-20° (BENCHMARKS "Highlights on a wrong shape"); 0 = off
+    normal_grid: int = 0
+    normal_keys: int = 8
+    lr_normals: float = 0.01
+    lambda_normals: float = 1e-3
     lambda_metallic_l1: float = 0.0      # maps="guided": area-weighted mean metallic (sparsity prior)
     # maps="guided": mean squared colour of the log-gain grid (each cell's channels minus their mean), a
     # prior that ties the gain's colour to grey so the light's colour goes to the env map (0 = off)
@@ -105,6 +114,8 @@ class AppearanceConfig:
             bad("diffuse_shading", "must be 'gain' or 'irradiance'")
         if self.frame_specular < 0 or self.frame_specular == 1:
             bad("frame_specular", "must be 0 (off) or >= 2 frames")
+        if self.normal_grid < 0 or self.normal_keys < 0 or self.lr_normals < 0 or self.lambda_normals < 0:
+            bad("normal_grid", "normal_grid, normal_keys, lr_normals and lambda_normals must be >= 0")
         if self.gain_grid < 1 or self.clusters < 1:
             bad("clusters", "gain_grid and clusters must be >= 1")
         if self.env_levels < 1 or (self.env_height >> (self.env_levels - 1)) < 1:
