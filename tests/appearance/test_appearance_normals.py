@@ -53,3 +53,21 @@ def test_renderer_gradient_reaches_the_normals():
     assert torch.allclose(plain, same, atol=1e-5)
     r.render(*maps, spp=16, seed=3, normals=nc(1)).sum().backward()
     assert nc.coeffs.grad is not None and float(nc.coeffs.grad.abs().sum()) > 0
+
+
+def test_fit_with_the_correction_and_the_blurred_loss_resumes():
+    from saft.appearance.config import cpu_profile
+    from saft.appearance.fit import fit_appearance
+
+    sc = make_scene(n_frames=3, image_size=32, map_size=16, render_spp=16)
+    cfg = cpu_profile()
+    cfg.maps, cfg.texel_size, cfg.env_levels, cfg.env_height, cfg.env_width = "texels", 32, 1, 16, 32
+    cfg.epochs, cfg.image_scale, cfg.frames_per_epoch, cfg.checkpoint_every = 4, 1.0, 2, 2
+    cfg.normal_grid, cfg.normal_keys, cfg.lr_normals, cfg.loss_blur = 2, 0, 0.05, 1.5
+    states = []
+    res = fit_appearance(sc.vertices, sc.triangles, sc.uvs, sc.camera, sc.rgb, sc.mask, cfg, checkpoint=states.append)
+    assert np.isfinite(res.losses).all() and "normals" in res.state
+    coeffs = res.state["normals"]["coeffs"]
+    assert coeffs.shape == (2, 4, 2) and float(coeffs.abs().max()) > 0   # keys 1, 2 of 3 frames were learnt
+    resumed = fit_appearance(sc.vertices, sc.triangles, sc.uvs, sc.camera, sc.rgb, sc.mask, cfg, resume_state=states[0])
+    assert len(resumed.losses) == 4 and resumed.losses[:2] == states[0]["losses"]

@@ -91,6 +91,12 @@ class AppearanceConfig:
     # image loss: "srgb" (the paper's sRGB MSE) or "srgb_linearised" (its first-order form around the
     # target, unbiased under 1-spp Monte Carlo noise; see fit.masked_linearised_srgb_mse)
     loss: Literal["srgb", "srgb_linearised"] = "srgb_linearised"
+    # loss="srgb_linearised": > 0: the loss is (1 − loss_blur_weight) times the per-pixel one plus
+    # loss_blur_weight times the same residual blurred by a Gaussian of loss_blur pixels (at the fit's
+    # resolution; appearance.tolerant), so that a highlight a few pixels off (saft's own motion is a
+    # centimetre off) costs little; 0 = off
+    loss_blur: float = 0.0
+    loss_blur_weight: float = 0.5
     # rendering
     spp: int = 1                         # samples per pixel while fitting
     max_depth: int = 2                   # 2 = direct lighting with shadows (emitter + BSDF sampling, MIS)
@@ -124,6 +130,8 @@ class AppearanceConfig:
             bad("grey_fraction", "grey_fraction + blend_fraction must lie in [0, 1]")
         if self.loss not in ("srgb", "srgb_linearised"):
             bad("loss", "must be 'srgb' or 'srgb_linearised'")
+        if self.loss_blur < 0 or not (0 <= self.loss_blur_weight <= 1):
+            bad("loss_blur", "loss_blur must be >= 0 and loss_blur_weight lie in [0, 1]")
         if self.spp < 1 or self.render_spp < 1:
             bad("spp", "must be >= 1")
         if not (0 < self.image_scale <= 1):

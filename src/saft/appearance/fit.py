@@ -21,6 +21,7 @@ from saft.appearance.guided import GuidedMaps
 from saft.appearance.irradiance import FrameZeroIrradiance, IrradianceMaps
 from saft.appearance.mitsuba_backend import load_mitsuba
 from saft.appearance.normals import NormalCorrection
+from saft.appearance.tolerant import blurred_linearised_mse
 from saft.appearance.params import (EnvironmentMap, PyramidEnvironmentMap, TexelMaps, TextureDecoder, colour_weight,
                                     env_amplitude, env_smoothness, linear_to_srgb, srgb_to_linear)
 from saft.appearance.renderer import ClothRenderer
@@ -259,6 +260,9 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
                 report = loss
             else:
                 loss = masked_linearised_srgb_mse(img, lin_t[f], slope_t[f], mask_t[f])
+                if cfg.loss_blur > 0:
+                    blurred = blurred_linearised_mse(img, lin_t[f], slope_t[f], mask_t[f], cfg.loss_blur)
+                    loss = (1.0 - cfg.loss_blur_weight) * loss + cfg.loss_blur_weight * blurred
                 with torch.no_grad():
                     report = masked_srgb_mse(img, rgb_t[f], mask_t[f])
             (loss / len(frames)).backward()
