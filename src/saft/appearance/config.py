@@ -43,6 +43,15 @@ class AppearanceConfig:
     # leave no frame out (the same fit). 0.75: plaid 20.76, 30.18 / 31.50, set on plaid alone, not taken
     # (BENCHMARKS.md, issue 28, "Which frames may teach the detail share")
     detail_trust: float = 0.0
+    # > 0: a per-frame correction of the shading normals is learnt with the maps (appearance.normals): a
+    # tangent offset on a normal_grid × normal_grid bilinear lattice over the UV square, at normal_keys
+    # keyframes in time (0 = one per frame) linearly interpolated, zero at frame 0; rate lr_normals, and
+    # lambda_normals times the mean squared offset pulls it towards the meshes' own normals. For saft's
+    # own motion, whose normals are off by 5-20° (BENCHMARKS "Highlights on a wrong shape"); 0 = off
+    normal_grid: int = 0
+    normal_keys: int = 8
+    lr_normals: float = 0.01
+    lambda_normals: float = 1e-3
     lambda_metallic_l1: float = 0.0      # maps="guided": area-weighted mean metallic (sparsity prior)
     # maps="guided": mean squared colour of the log-gain grid (each cell's channels minus their mean), a
     # prior that ties the gain's colour to grey so the light's colour goes to the env map (0 = off)
@@ -82,6 +91,12 @@ class AppearanceConfig:
     # image loss: "srgb" (the paper's sRGB MSE) or "srgb_linearised" (its first-order form around the
     # target, unbiased under 1-spp Monte Carlo noise; see fit.masked_linearised_srgb_mse)
     loss: Literal["srgb", "srgb_linearised"] = "srgb_linearised"
+    # loss="srgb_linearised": > 0: the loss is (1 − loss_blur_weight) times the per-pixel one plus
+    # loss_blur_weight times the same residual blurred by a Gaussian of loss_blur pixels (at the fit's
+    # resolution; appearance.tolerant), so that a highlight a few pixels off (saft's own motion is a
+    # centimetre off) costs little; 0 = off
+    loss_blur: float = 0.0
+    loss_blur_weight: float = 0.5
     # rendering
     spp: int = 1                         # samples per pixel while fitting
     max_depth: int = 2                   # 2 = direct lighting with shadows (emitter + BSDF sampling, MIS)
@@ -105,6 +120,8 @@ class AppearanceConfig:
             bad("diffuse_shading", "must be 'gain' or 'irradiance'")
         if self.frame_specular < 0 or self.frame_specular == 1:
             bad("frame_specular", "must be 0 (off) or >= 2 frames")
+        if self.normal_grid < 0 or self.normal_keys < 0 or self.lr_normals < 0 or self.lambda_normals < 0:
+            bad("normal_grid", "normal_grid, normal_keys, lr_normals and lambda_normals must be >= 0")
         if self.gain_grid < 1 or self.clusters < 1:
             bad("clusters", "gain_grid and clusters must be >= 1")
         if self.env_levels < 1 or (self.env_height >> (self.env_levels - 1)) < 1:
@@ -113,6 +130,8 @@ class AppearanceConfig:
             bad("grey_fraction", "grey_fraction + blend_fraction must lie in [0, 1]")
         if self.loss not in ("srgb", "srgb_linearised"):
             bad("loss", "must be 'srgb' or 'srgb_linearised'")
+        if self.loss_blur < 0 or not (0 <= self.loss_blur_weight <= 1):
+            bad("loss_blur", "loss_blur must be >= 0 and loss_blur_weight lie in [0, 1]")
         if self.spp < 1 or self.render_spp < 1:
             bad("spp", "must be >= 1")
         if not (0 < self.image_scale <= 1):

@@ -20,6 +20,8 @@ from saft.appearance.frame_specular import FRAME_GRID, FrameStack, frame_specula
 from saft.appearance.guided import GuidedMaps
 from saft.appearance.irradiance import FrameZeroIrradiance, IrradianceMaps
 from saft.appearance.mitsuba_backend import load_mitsuba
+from saft.appearance.normals import NormalCorrection
+from saft.appearance.tolerant import blurred_linearised_mse
 from saft.appearance.params import (EnvironmentMap, PyramidEnvironmentMap, TexelMaps, TextureDecoder, colour_weight,
                                     env_amplitude, env_smoothness, linear_to_srgb, srgb_to_linear)
 from saft.appearance.renderer import ClothRenderer
@@ -194,6 +196,11 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
     else:
         opt_maps = torch.optim.Adam(model.parameters(), lr=cfg.lr_texels)
     opt_env = torch.optim.Adam(env.parameters(), lr=cfg.lr_env, betas=tuple(cfg.betas_env))
+    normals = None   # the learnt shading-normal correction (appearance.normals); None: the meshes' own
+    if cfg.normal_grid > 0:
+        normals = NormalCorrection(verts, triangles, uvs, cfg.normal_grid, cfg.normal_keys).to(dev)
+        opt_normals = torch.optim.Adam(normals.parameters(), lr=cfg.lr_normals)
+    shading = (lambda f: None) if normals is None else (lambda f: normals(int(f)))
     losses: list[float] = []
     start_epoch = 0
     if resume_state is not None:
@@ -201,6 +208,9 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
         env.load_state_dict(resume_state["env"])
         opt_maps.load_state_dict(resume_state["opt_maps"])
         opt_env.load_state_dict(resume_state["opt_env"])
+        if normals is not None:
+            normals.load_state_dict(resume_state["normals"])
+            opt_normals.load_state_dict(resume_state["opt_normals"])
         losses = list(resume_state["losses"])
         start_epoch = int(resume_state["epoch"])
 
@@ -211,7 +221,9 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
     def state(epoch: int) -> dict:
         return {"epoch": epoch, "model": copy.deepcopy(model.state_dict()), "env": copy.deepcopy(env.state_dict()),
                 "opt_maps": copy.deepcopy(opt_maps.state_dict()), "opt_env": copy.deepcopy(opt_env.state_dict()),
-                "losses": list(losses), "config": cfg.to_dict()}
+                "losses": list(losses), "config": cfg.to_dict(),
+                **({} if normals is None else {"normals": copy.deepcopy(normals.state_dict()),
+                                               "opt_normals": copy.deepcopy(opt_normals.state_dict())})}
 
     t0, c0 = time.perf_counter(), time.process_time()
     batch = cfg.frames_per_epoch if 0 < cfg.frames_per_epoch < n_frames else n_frames
@@ -222,6 +234,9 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
         for opt, lr in zip((opt_maps, opt_env), base_lrs):
             for g in opt.param_groups:
                 g["lr"] = lr * decay
+        if normals is not None:
+            opt_normals.param_groups[0]["lr"] = cfg.lr_normals * decay
+            opt_normals.zero_grad(set_to_none=True)   # the frames' renders put their gradients here directly
         if batch < n_frames:
             frames = np.sort(np.random.default_rng(cfg.seed * 100_003 + epoch).choice(n_frames, batch, replace=False))
         else:
@@ -239,12 +254,15 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
                 before = leaves["diffuse"].grad.clone() if leaves["diffuse"].grad is not None else 0.0
             renderer.set_vertices(verts[f])
             img = renderer.render(leaves["diffuse"], leaves["roughness"], leaves["metallic"], env_leaf,
-                                  spp=cfg.spp, seed=epoch * n_frames + int(f))
+                                  spp=cfg.spp, seed=epoch * n_frames + int(f), normals=shading(f))
             if cfg.loss == "srgb":
                 loss = masked_srgb_mse(img, rgb_t[f], mask_t[f])
                 report = loss
             else:
                 loss = masked_linearised_srgb_mse(img, lin_t[f], slope_t[f], mask_t[f])
+                if cfg.loss_blur > 0:
+                    blurred = blurred_linearised_mse(img, lin_t[f], slope_t[f], mask_t[f], cfg.loss_blur)
+                    loss = (1.0 - cfg.loss_blur_weight) * loss + cfg.loss_blur_weight * blurred
                 with torch.no_grad():
                     report = masked_srgb_mse(img, rgb_t[f], mask_t[f])
             (loss / len(frames)).backward()
@@ -258,6 +276,8 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
             reg = reg + cfg.lambda_metallic_l1 * model.metallic_l1()
             if cfg.lambda_gain_chroma > 0:
                 reg = reg + cfg.lambda_gain_chroma * model.gain_chroma()
+        if normals is not None:
+            reg = reg + cfg.lambda_normals * normals.penalty()
         opt_maps.zero_grad(set_to_none=True)
         opt_env.zero_grad(set_to_none=True)
         outs = [maps[k] for k in leaves] + [env_eff]
@@ -266,11 +286,14 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
         torch.autograd.backward(outs + [reg], grads + [torch.ones_like(reg)])
         if dropped is not None and model.detail_logit.grad is not None:
             model.detail_logit.grad -= dropped
-        for p in list(model.parameters()) + list(env.parameters()):
+        learnt = list(model.parameters()) + list(env.parameters()) + list(() if normals is None else normals.parameters())
+        for p in learnt:
             if p.grad is not None and not torch.isfinite(p.grad).all():
                 p.grad = None  # skip a non-finite step (Monte Carlo outlier)
         opt_maps.step()
         opt_env.step()
+        if normals is not None:
+            opt_normals.step()
         env.clamp_()
         losses.append(epoch_loss)
         if progress is not None:
@@ -291,7 +314,9 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
 
         def render_frame(f, d, r, m, e, spp, seed):
             renderer.set_vertices(verts[f])
-            return renderer.render(d, r, m, e, spp=spp, seed=seed)
+            with torch.no_grad():
+                n = shading(f)
+            return renderer.render(d, r, m, e, spp=spp, seed=seed, normals=n)
 
         evidence = cluster_evidence(model, env_now, render_frame, test_frames,
                                     lambda f, img: masked_linearised_srgb_mse(img, lin_t[f], slope_t[f], mask_t[f]),

@@ -135,11 +135,13 @@ class ClothRenderer:
 
     # ------------------------------------------------------------------ rendering
     def render(self, diffuse: torch.Tensor, roughness: torch.Tensor, metallic: torch.Tensor, env: torch.Tensor,
-               spp: int = 1, seed: int = 0) -> torch.Tensor:
-        """Linear RGB image (H, W, 3) of the current frame; differentiable w.r.t. the four torch inputs.
+               spp: int = 1, seed: int = 0, normals: torch.Tensor | None = None) -> torch.Tensor:
+        """Linear RGB image (H, W, 3) of the current frame; differentiable w.r.t. the torch inputs.
 
         diffuse (h, w, 3), roughness (h, w) or (h, w, 1), metallic likewise, env (He, We, 3); map sizes may
-        differ from those at construction (Mitsuba re-allocates the bitmaps).
+        differ from those at construction (Mitsuba re-allocates the bitmaps). normals (V, 3): unit shading
+        normals for this render instead of the mesh's own (appearance.normals), differentiable too; the
+        mesh's own are put back by the next set_vertices.
         """
         mi, dr = self.mi, self.dr
         rough = roughness.reshape(*roughness.shape[:2], 1)
@@ -149,16 +151,19 @@ class ClothRenderer:
         spp, seed = int(spp), int(seed)
 
         @dr.wrap(source="torch", target="drjit")
-        def _render(d, r, m, e):
+        def _render(d, r, m, e, *n):
             params[keys["diffuse"]] = d
             params[keys["roughness"]] = r
             params[keys["metallic"]] = m
             params[keys["env"]] = e
+            if n:
+                params["cloth.vertex_normals"] = n[0].array
             params.update()
             return mi.render(scene, params, spp=spp, seed=seed, seed_grad=seed + 1_000_003)
 
         dev = self.device
-        args = [t.to(device=dev, dtype=torch.float32).contiguous() for t in (diffuse, rough, metal, env_padded)]
+        inputs = (diffuse, rough, metal, env_padded) + (() if normals is None else (normals.reshape(-1),))
+        args = [t.to(device=dev, dtype=torch.float32).contiguous() for t in inputs]
         return _render(*args)
 
     @torch.no_grad()
