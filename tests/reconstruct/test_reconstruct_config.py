@@ -110,11 +110,16 @@ def test_physics_rest_shape_reaches_the_simulator():
     x0 = torch.as_tensor(template.vertices, dtype=torch.float64).clone()
     x0[:, 2] += 0.03 * torch.sin(20 * x0[:, 1])  # billowed: the template is not flat
     angles = {}
-    for shape in ("template", "flat"):
+    for shape in ("template", "flat", "moving"):
         cfg = load_config(SaftConfig, None, [f'physics.rest_shape="{shape}"'])
         sim = ShapeSimulator(x0, template.quads, cfg.physics, 0.02, None)
         t = sim.topology
         angles[shape] = t.rest_angle[t.is_bend].numpy()
-    assert SaftConfig().physics.rest_shape == "template"
+    assert SaftConfig().physics.rest_shape == "moving"
     assert angles["template"].max() > math.acos(0.99) + 0.01
     assert np.allclose(angles["flat"], math.acos(0.99), atol=1e-9)
+    # "moving" starts from the template's rest shape; the shape phase flattens it once the v0 gate finds the
+    # clip in motion (run_shape_phase), through use_rest_shape
+    assert np.array_equal(angles["moving"], angles["template"])
+    sim.use_rest_shape("flat")
+    assert np.allclose(sim.topology.rest_angle[sim.topology.is_bend].numpy(), math.acos(0.99), atol=1e-9)
