@@ -13,6 +13,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import torch
 
+from saft.scene.mesh import vertex_normals
+
 ARCCOS_GUARD = 0.99  # theta = arccos(0.99 * e1_hat . e2_hat) keeps arccos differentiable (REFERENCE.md)
 BEND_THRESHOLD_RAD = math.pi / 4.0  # rest angle < 45 deg -> bending hinge, else shearing hinge
 DEFAULT_DENSITY = 0.1  # kg / m^2 (paper, supplementary "Mass")
@@ -213,22 +215,12 @@ def _cosines(e1: np.ndarray, e2: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->i", e1, e2) / np.maximum(np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1), 1e-300)
 
 
-def vertex_normals(verts: np.ndarray, quads: np.ndarray) -> np.ndarray:
-    """(V, 3) unit area-weighted normals of the triangulation (a,b,c), (a,c,d)."""
-    tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]], axis=0)
-    fn = np.cross(verts[tris[:, 1]] - verts[tris[:, 0]], verts[tris[:, 2]] - verts[tris[:, 0]])
-    n = np.zeros_like(verts)
-    for k in range(3):
-        np.add.at(n, tris[:, k], fn)
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-
-
 def flat_hinge_cosines(verts: np.ndarray, quads: np.ndarray, hinges: np.ndarray) -> np.ndarray:
     """cos of each hinge's angle in the template flattened: its edges e1 = v - n1, e2 = n2 - v projected on
     the tangent plane at v (normal to v's vertex normal). A curved template's bend hinges become straight (the
     normal curvature is what the projection removes), its shear hinges keep their in-surface angles; on a flat
     template nothing changes (up to rounding)."""
-    n = vertex_normals(verts, quads)[hinges[:, 1]]
+    n = vertex_normals(verts, np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]], axis=0))[hinges[:, 1]]
     e1 = verts[hinges[:, 1]] - verts[hinges[:, 0]]
     e2 = verts[hinges[:, 2]] - verts[hinges[:, 1]]
     e1 = e1 - np.einsum("ij,ij->i", e1, n)[:, None] * n
