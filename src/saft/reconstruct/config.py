@@ -62,7 +62,7 @@ class PhysicsConfig:
     # is flat at rest), or "moving" (flat when the clip starts in motion, i.e. when shape.lr_v0's gate learns
     # v0 with either rest shape, else the template). Rest lengths are the template's edge lengths either way.
     # "moving" (issue 29, BENCHMARKS "The rest shape flat where the clip starts moving"): Newton from frame 8
-    # gust 5.76 -> 1.64, corners 1.39 -> 1.14, fold level over two seeds, unpinned gust 53.4 -> 47.2; where
+    # gust 5.76 -> 1.64, corners 1.39 -> 1.14, unpinned gust 53.4 -> 47.2, fold 2.31 -> 2.78 (medians); where
     # the gate drops v0 (demo, R1, the curved appearance clips) the run is the template's, bit for bit.
     rest_shape: Literal["template", "flat", "moving"] = "moving"
     log10_Y_init: float = DEFAULT_LOG10_Y
