@@ -122,4 +122,7 @@ def test_physics_rest_shape_reaches_the_simulator():
     # clip in motion (run_shape_phase), through use_rest_shape
     assert np.array_equal(angles["moving"], angles["template"])
     sim.use_rest_shape("flat")
-    assert np.allclose(sim.topology.rest_angle[sim.topology.is_bend].numpy(), math.acos(0.99), atol=1e-9)
+    flat = sim.topology
+    assert np.allclose(flat.rest_angle[flat.is_bend].numpy(), math.acos(0.99), atol=1e-9)
+    sim.use_rest_shape("flat")   # unchanged: the topology is kept, not rebuilt
+    assert sim.topology is flat

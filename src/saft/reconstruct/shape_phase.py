@@ -214,13 +214,17 @@ class ShapeSimulator:
         self.frame_dt = frame_dt
         self.template = template
         self.quads = quads
+        self.rest_shape = None
         self.use_rest_shape("flat" if phys.rest_shape == "flat" else "template")
         self.pinned = None if pinned is None or len(pinned) == 0 else torch.as_tensor(pinned, device=template.device)
         self.mean_edge_length = float(self.topology.rest_len.mean())
         self.field_basis = affine_basis(template.detach())
 
     def use_rest_shape(self, rest_shape: str) -> None:
-        """(Re)build the topology with rest angles "template" or "flat" (physics.rest_shape)."""
+        """(Re)build the topology with rest angles "template" or "flat" (physics.rest_shape); kept if unchanged."""
+        if rest_shape == self.rest_shape:
+            return
+        self.rest_shape = rest_shape
         t = self.template
         self.topology = ClothTopology.from_quads(t.detach().cpu().numpy(), self.quads, density=self.phys.density,
                                                  device=t.device, dtype=t.dtype, rest_shape=rest_shape)
@@ -433,10 +437,8 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
             with torch.no_grad():               # physics from that rest, as with "flat"
                 state.params.v0_field.zero_()
             start_velocity(state.params, state.optimizer, sim, tracks, ctx.camera)
-            if state.params.v0_field is None:   # "moving" means: flat exactly when v0 is learned
-                sim.use_rest_shape("template")
-    elif phys.rest_shape == "moving" and state.params.v0_field is not None:   # resumed with v0: flat
-        sim.use_rest_shape("flat")
+    if phys.rest_shape == "moving":             # flat exactly when v0 is learned (so a resumed run agrees)
+        sim.use_rest_shape("flat" if state.params.v0_field is not None else "template")
     if cfg.window > 0 and state.states is None:
         zeros = sim.template.new_zeros((n_frames,) + tuple(sim.template.shape))
         state.states = FrameStates(zeros.clone(), zeros.clone(), 1)
