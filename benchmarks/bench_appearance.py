@@ -1,18 +1,20 @@
 """Appearance benchmark with ground truth (issue 28): phase 3 against the true maps and lights, per fabric.
 
 For each fabric kind (saft.synthetic.fabrics: cotton, print, plaid, satin, lame) a cloth in wind (saft's
-simulator) is path-traced by Mitsuba with the fabric's known base colour / roughness / metallic maps under
-the "video" environment map (saft.synthetic.appearance.write_appearance_scene; scenes are cached under
---root). Rows per scene (metrics: saft.evaluate.appearance):
+simulator, or with ``--motion newton`` NVIDIA Newton's on a finer mesh) is path-traced by Mitsuba with the
+fabric's known base colour / roughness / metallic maps under the "video" environment map
+(saft.synthetic.appearance.write_appearance_scene; scenes are cached under --root). Rows per scene (metrics:
+saft.evaluate.appearance):
 
 * ``texture only``: the phase-1 texture (saft reconstruct, texture phase) as the diffuse map, roughness 1,
   metallic 0 — no phase 3 at all;
 * ``phase 3, true motion``: fit_appearance on the ground-truth vertices (the paper's protocol), started
-  from that phase-1 texture;
+  from that phase-1 texture (Newton's truth resampled to the template: true_motion_on_template);
 * ``phase 3, saft motion`` (``--own-motion``): phase 3 on saft's own motion, as in ``saft reconstruct``:
   the run's texture and shape phases (``saft reconstruct`` with phase 3 off, cached under --root, since they
   do not depend on the appearance settings), then fit_appearance on its meshes and its phase-1 texture,
-  scored the same way (the relit views use the true geometry, so only the maps are judged).
+  scored the same way (the relit views use the true geometry, Newton's own fine mesh where it has one:
+  saft.evaluate.appearance.true_geometry, so only the maps are judged).
 
     PYTHONPATH=src nice -n 10 python3 benchmarks/bench_appearance.py                 # 16 frames, 160x120
     PYTHONPATH=src nice -n 10 python3 benchmarks/bench_appearance.py --frames 32 --width 320 --height 240
@@ -21,7 +23,9 @@ the "video" environment map (saft.synthetic.appearance.write_appearance_scene; s
 
 ``--start N`` drops the first N simulated frames, so that frame 0 (and the template) is the cloth already
 curved by the wind and its shading varies across it (AppearanceSceneSpec.start); scenes and runs are cached
-under names ending in ``_sN``.
+under names ending in ``_sN``. ``--motion newton``: the motion of independent_scenes' "gust" scenario from
+Newton's VBD on a 40 × 40 mesh (the template 17 × 17, 30 fps; AppearanceSceneSpec.motion), not saft's own
+simulator on the template's mesh: cached under names with ``_newton`` in them.
 """
 
 from __future__ import annotations
@@ -38,13 +42,14 @@ from saft.appearance import fit_appearance
 from saft.appearance.config import AppearanceConfig, cpu_profile, paper_profile
 from saft.config_io import merge_overrides
 from saft.evaluate import GroundTruthSpec, evaluate_result_dir
-from saft.evaluate.appearance import METRIC_NAMES, appearance_metrics, read_appearance_ground_truth, texture_baseline
+from saft.evaluate.appearance import (METRIC_NAMES, appearance_metrics, read_appearance_ground_truth, texture_baseline,
+                                      true_geometry)
 from saft.io_utils import read_image
 from saft.reconstruct import reconstruct
 from saft.reconstruct.config import load_saft_config
 from saft.scene import load_scene
 from saft.scene.mesh import read_obj
-from saft.synthetic.appearance import AppearanceSceneSpec, write_appearance_scene
+from saft.synthetic.appearance import AppearanceSceneSpec, true_motion_on_template, write_appearance_scene
 from saft.synthetic.fabrics import FABRICS
 
 
@@ -69,8 +74,9 @@ def own_motion(scene_dir: Path, out: Path, threads: int = 0) -> tuple[np.ndarray
     return positions, read_image(out / "texture.png")[..., :3], float(cd2)
 
 
-def row(label: str, maps, gt, scene, verts, spp: int, seconds=(0.0, 0.0)) -> dict:
-    m = appearance_metrics(*maps, gt, verts, scene.template.triangles, scene.template.uvs, scene.camera, spp=spp)
+def row(label: str, maps, gt, scene, truth, spp: int, seconds=(0.0, 0.0)) -> dict:
+    """One row's metrics; truth = (vertices, triangles, uvs) of the true geometry (true_geometry)."""
+    m = appearance_metrics(*maps, gt, *truth, scene.camera, spp=spp)
     return {"method": label, **{k: m[k] for k in METRIC_NAMES}, "fit_wall_s": seconds[0], "fit_cpu_s": seconds[1]}
 
 
@@ -108,6 +114,8 @@ def main(argv=None) -> int:
     ap.add_argument("--height", type=int, default=120)
     ap.add_argument("--start", type=int, default=0, help="simulated frames dropped before frame 0 (> 0: frame 0 "
                     "is billowed, not flat)")
+    ap.add_argument("--motion", choices=["saft", "newton"], default="saft",
+                    help="the cloth's simulator: saft's own on the template's mesh, or Newton's on a finer one")
     ap.add_argument("--spp", type=int, default=64, help="samples per pixel of the videos")
     ap.add_argument("--eval-spp", type=int, default=64, help="samples per pixel of the relit novel views")
     ap.add_argument("--root", default="/tmp/saft-appearance-bench")
@@ -131,24 +139,26 @@ def main(argv=None) -> int:
     rows = []
     for fabric in args.fabrics.split(","):
         spec = AppearanceSceneSpec(fabric=fabric, frames=args.frames, width=args.width, height=args.height,
-                                   spp=args.spp, start=args.start)
-        name = f"{fabric}_{args.frames}f_{args.width}x{args.height}" + (f"_s{args.start}" if args.start else "")
+                                   spp=args.spp, start=args.start, motion=args.motion)
+        name = (f"{fabric}_{args.frames}f_{args.width}x{args.height}" + (f"_s{args.start}" if args.start else "")
+                + ("" if args.motion == "saft" else f"_{args.motion}"))
         t0 = time.perf_counter()
         scene_dir = write_appearance_scene(root / "scenes" / name, spec)
         scene = load_scene(scene_dir)
         gt = read_appearance_ground_truth(scene_dir)
-        verts = np.load(scene_dir / "gt_vertices.npy").astype(np.float64)
+        truth = true_geometry(scene_dir, scene.template)     # scores: the relit views' geometry
+        verts = true_motion_on_template(scene_dir)           # the "true motion" phase 3 is fitted on
         texture = phase1_texture(scene_dir, root / "results" / f"{name}-texture", args.threads)
         print(f"[{fabric}] scene + phase 1: {time.perf_counter() - t0:.0f} s", flush=True)
         if not args.no_baseline:
-            rows.append({"fabric": fabric, **row("texture only", texture_baseline(texture), gt, scene, verts,
+            rows.append({"fabric": fabric, **row("texture only", texture_baseline(texture), gt, scene, truth,
                                                  args.eval_spp)})
         rgb, mask = scene.frames.load()
         if not args.no_true_motion:
             res = fit_appearance(verts, scene.template.triangles, scene.template.uvs, scene.camera, rgb, mask, cfg,
                                  init_texture=texture)
             rows.append({"fabric": fabric, **row("phase 3, true motion", (res.diffuse, res.roughness, res.metallic),
-                                                 gt, scene, verts, args.eval_spp, (res.seconds, res.cpu_seconds)),
+                                                 gt, scene, truth, args.eval_spp, (res.seconds, res.cpu_seconds)),
                          "materials": res.materials})
             if args.save_maps:
                 save_comparison(Path(args.save_maps) / f"{name}.png", res, gt, texture)
@@ -157,13 +167,14 @@ def main(argv=None) -> int:
             own = fit_appearance(positions, scene.template.triangles, scene.template.uvs, scene.camera, rgb, mask,
                                  cfg, init_texture=own_texture)
             rows.append({"fabric": fabric, **row("phase 3, saft motion", (own.diffuse, own.roughness, own.metallic),
-                                                 gt, scene, verts, args.eval_spp, (own.seconds, own.cpu_seconds)),
+                                                 gt, scene, truth, args.eval_spp, (own.seconds, own.cpu_seconds)),
                          "shape_cd2": cd2, "materials": own.materials})
         for r in rows[-3:]:
             if r["fabric"] == fabric:
                 print(json.dumps(r), flush=True)
 
-    print(f"\nappearance benchmark: {args.frames} frames of {args.width}x{args.height} (start {args.start}), "
+    print(f"\nappearance benchmark: {args.frames} frames of {args.width}x{args.height} (start {args.start}, "
+          f"motion {args.motion}), "
           f"video {args.spp} spp, "
           f"relit views {args.eval_spp} spp, profile {cfg.profile}, overrides {args.set or 'none'}")
     print("| fabric | method | diffuse PSNR (dB) | roughness MAE | metallic MAE | relit PSNR video light (dB) | "

@@ -1,11 +1,16 @@
-"""The appearance scenes' motion (saft.synthetic.appearance.appearance_motion): start > 0 gives a curved frame 0."""
+"""The appearance scenes' motion (saft.synthetic.appearance.appearance_motion): start > 0 gives a curved frame 0;
+motion "newton" gives Newton's cloth on a finer mesh, resampled to the template, scored on its own mesh."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
+from saft.evaluate.appearance import true_geometry
+from saft.scene import load_scene
 from saft.scene.mesh import vertex_normals
-from saft.synthetic.appearance import AppearanceSceneSpec, appearance_motion
+from saft.synthetic.appearance import (AppearanceSceneSpec, appearance_motion, newton_motion, scene_info,
+                                       true_motion_on_template, write_appearance_scene)
 
 TINY = AppearanceSceneSpec(grid=6, frames=3, frame_dt=0.04)
 
@@ -25,3 +30,41 @@ def test_start_drops_simulated_frames_and_makes_frame_zero_the_template():
     # frame 0 is billowed: its normals spread, where the flat one's are all equal
     n = vertex_normals(template.vertices, template.triangles)
     assert np.degrees(np.arccos(np.clip(n @ n.mean(0) / np.linalg.norm(n.mean(0)), -1, 1))).max() > 5
+
+
+def test_saft_motion_identity_is_the_one_written_before_motion_existed():
+    info = scene_info(TINY)
+    assert "motion" not in info["spec"] and "gt_grid" not in info["spec"] and "start" not in info["spec"]
+    newton = scene_info(AppearanceSceneSpec(grid=6, frames=3, motion="newton"))
+    assert newton["spec"]["motion"] == "newton" and newton["spec"]["gt_grid"] == 40
+
+
+def test_newton_motion_is_the_fine_truth_and_its_resampling_to_the_template():
+    pytest.importorskip("newton")  # the optional `bench` extra (install.sh --dev installs it)
+    spec = AppearanceSceneSpec(grid=5, gt_grid=9, frames=3, motion="newton")
+    template, on_template, held, truth_mesh, truth, frame_dt = newton_motion(spec)
+    assert truth.shape == (3, 81, 3) and on_template.shape == (3, 25, 3)
+    assert np.all(np.isfinite(truth)) and np.ptp(truth[2] - truth[0]) > 1e-4        # it moves
+    # the template's material points are every other fine one: the resampling is exact there
+    np.testing.assert_allclose(on_template, truth.reshape(3, 9, 9, 3)[:, ::2, ::2].reshape(3, 25, 3), atol=1e-12)
+    np.testing.assert_allclose(template.vertices, on_template[0])
+    np.testing.assert_allclose(truth_mesh.vertices, truth[0])
+    assert template.quads.shape == (16, 4) and truth_mesh.quads.shape == (64, 4)
+    np.testing.assert_array_equal(held, np.arange(5))                                # the top edge
+    assert frame_dt == pytest.approx(1 / 30)
+    np.testing.assert_array_equal(appearance_motion(spec)[1], on_template)
+
+
+def test_newton_scene_scores_on_its_own_mesh(tmp_path):
+    pytest.importorskip("newton")
+    spec = AppearanceSceneSpec(fabric="satin", grid=5, gt_grid=9, frames=2, motion="newton", width=24, height=18,
+                               spp=2, map_size=32, env_height=8, env_width=16)
+    folder = write_appearance_scene(tmp_path / "scene", spec)
+    scene = load_scene(folder)
+    assert scene.template.num_vertices == 25 and scene.frame_dt == pytest.approx(1 / 30)
+    verts, triangles, uvs = true_geometry(folder, scene.template)
+    assert verts.shape == (2, 81, 3) and triangles.shape == (128, 3) and uvs.shape == (81, 2)
+    assert true_motion_on_template(folder).shape == (2, 25, 3)
+    rgb, mask = scene.frames.load()
+    assert rgb.shape == (2, 18, 24, 3) and np.all(np.isfinite(rgb)) and mask.sum() > 0
+    assert write_appearance_scene(tmp_path / "scene", spec) == folder                  # kept: same identity

@@ -9,6 +9,8 @@ How a scene folder stores appearance ground truth (``appearance_gt/``, beside sc
     appearance_gt/envmap_unseen.exr  a light never shown, for relighting
     appearance_gt/appearance_gt.json {"max_depth": path length the video was rendered with, ...}
     gt_vertices.npy                  (F, V, 3) true geometry, world frame (for the relit novel views)
+    gt_mesh.obj                      optional: the true geometry's own mesh (its triangles and UVs), where
+                                     it is not the template's (a finer mesh, another simulator's)
 
 Metrics (``appearance_metrics``), over the texels the template's UV layout covers:
 
@@ -43,8 +45,10 @@ from saft.errors import SaftInputError
 from saft.io_utils import atomic_write_json, read_image, write_image
 from saft.render import render_cloth
 from saft.scene.camera import Camera, orbit_camera
+from saft.scene.mesh import QuadMesh, read_obj
 
 APPEARANCE_GT_DIR = "appearance_gt"
+GT_MESH_FILE = "gt_mesh.obj"
 NOVEL_ANGLES = (-30.0, 30.0)
 METRIC_NAMES = ("diffuse_psnr_db", "roughness_mae", "metallic_mae", "relit_video_psnr_db", "relit_unseen_psnr_db")
 HIGHER_IS_BETTER = {"diffuse_psnr_db": True, "roughness_mae": False, "metallic_mae": False,
@@ -87,6 +91,21 @@ def read_appearance_ground_truth(scene_folder) -> AppearanceGroundTruth | None:
                                  read_image(folder / "roughness.png")[..., 0], read_image(folder / "metallic.png")[..., 0],
                                  read_exr(folder / "envmap_video.exr")[..., :3],
                                  read_exr(folder / "envmap_unseen.exr")[..., :3], info)
+
+
+def true_geometry(scene_folder, template: QuadMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(vertices (F, V, 3) float64, triangles, uvs) of the scene's true geometry, the relit views' (module
+    docstring): gt_vertices.npy on gt_mesh.obj's topology where the scene has one, else on the template's;
+    None without gt_vertices.npy."""
+    folder = Path(scene_folder)
+    if not (folder / "gt_vertices.npy").is_file():
+        return None
+    verts = np.load(folder / "gt_vertices.npy").astype(np.float64)
+    mesh = read_obj(folder / GT_MESH_FILE) if (folder / GT_MESH_FILE).is_file() else template
+    if verts.shape[1] != mesh.num_vertices:
+        raise SaftInputError(folder / "gt_vertices.npy", f"{verts.shape[1]} vertices per frame, but its mesh has "
+                             f"{mesh.num_vertices}")
+    return verts, mesh.triangles, mesh.uvs
 
 
 def texture_baseline(texture_srgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -6,11 +6,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
-
 from saft.appearance.fit import load_appearance
 from saft.evaluate.appearance import (HIGHER_IS_BETTER, METRIC_NAMES, appearance_metrics, beats, map_metrics,
-                                      read_appearance_ground_truth, texture_baseline, uv_coverage)
+                                      read_appearance_ground_truth, texture_baseline, true_geometry, uv_coverage)
 from saft.io_utils import atomic_write_json, read_image
 from saft.scene import load_scene
 
@@ -20,8 +18,8 @@ SUMMARY = Path("material") / "appearance.json"
 def evaluate_appearance_result(result_dir, scene_dir, spp: int = 64, device="cpu", write: bool = True) -> dict | None:
     """{"phase3": metrics, "texture_only": metrics, "phase3_better": {metric: bool}} of a result folder,
     or None when the scene has no appearance ground truth or the result no material/ (phase 3 off).
-    The relit novel views need the scene's true geometry (gt_vertices.npy); without it only the map
-    metrics are given. Adds the dict to material/appearance.json under "ground_truth_metrics"."""
+    The relit novel views need the scene's true geometry (gt_vertices.npy, on gt_mesh.obj where the truth
+    has its own mesh: saft.evaluate.appearance.true_geometry); without it only the map metrics are given. Adds the dict to material/appearance.json under "ground_truth_metrics"."""
     result_dir, scene_dir = Path(result_dir), Path(scene_dir)
     gt = read_appearance_ground_truth(scene_dir)
     if gt is None or not (result_dir / SUMMARY).is_file():
@@ -29,14 +27,13 @@ def evaluate_appearance_result(result_dir, scene_dir, spp: int = 64, device="cpu
     scene = load_scene(scene_dir)
     est = load_appearance(result_dir)
     texture = read_image(result_dir / "texture.png")[..., :3]
-    tri, uvs = scene.template.triangles, scene.template.uvs
-    verts_file = scene_dir / "gt_vertices.npy"
+    truth = true_geometry(scene_dir, scene.template)
     rows = {}
     for name, maps in (("phase3", (est.diffuse, est.roughness, est.metallic)), ("texture_only", texture_baseline(texture))):
-        if verts_file.is_file():
-            verts = np.load(verts_file).astype(np.float64)
-            rows[name] = appearance_metrics(*maps, gt, verts, tri, uvs, scene.camera, spp=spp, device=device)
+        if truth is not None:
+            rows[name] = appearance_metrics(*maps, gt, *truth, scene.camera, spp=spp, device=device)
         else:
+            tri, uvs = scene.template.triangles, scene.template.uvs
             rows[name] = map_metrics(*maps, gt, uv_coverage(tri, uvs, gt.roughness.shape[0]))
     out = {**rows, "phase3_better": {k: bool(v) for k, v in beats(rows["phase3"], rows["texture_only"]).items()},
            "scene": str(scene_dir), "relit_spp": spp}

@@ -10,21 +10,26 @@ from __future__ import annotations
 import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import torch
 
 from saft.appearance.params import linear_to_srgb
 from saft.appearance.renderer import ClothRenderer
-from saft.evaluate.appearance import APPEARANCE_GT_DIR, write_appearance_ground_truth
+from saft.evaluate.appearance import APPEARANCE_GT_DIR, GT_MESH_FILE, write_appearance_ground_truth
 from saft.evaluate.metrics import sample_surface
 from saft.scene.camera import Camera, look_at
 from saft.scene.frames import FrameSequence
-from saft.scene.mesh import QuadMesh
+from saft.scene.mesh import QuadMesh, write_obj
 from saft.scene.scene import Scene
 from saft.synthetic.benchmark_scenes import DONE_FILE, GRAVITY, BenchSceneSpec, write_scene_folder, path_trace, simulate
 from saft.synthetic.fabrics import environment_map, fabric_maps
 from saft.synthetic.hanging_cloth import grid_template
+from saft.synthetic.independent_scenes import (IndependentSceneSpec, _indices, meshes, resample_grid, scenario,
+                                               simulate_independent)
+
+TEMPLATE_MOTION_FILE = "gt_vertices_template.npy"  # Newton's motion resampled to the template (phase 3's truth)
 
 
 @dataclass
@@ -137,10 +142,13 @@ def render_targets(scene: SyntheticScene, spp: int = 128, device="cpu", camera: 
 # ---------------------------------------------------------------------- benchmark scenes with appearance GT
 @dataclass(frozen=True)
 class AppearanceSceneSpec:
-    """A cloth in wind (saft's simulator, benchmark_scenes scenario "a") path-traced with a fabric's maps
-    under the "video" environment; see write_appearance_scene. start > 0 drops the first `start` simulated
-    frames: frame 0 (and the template) is then the cloth already billowed by the wind, curved and shaded
-    across (issue 28: a frame 0 whose folds the frame-0 irradiance has to divide out), not the flat sheet."""
+    """A cloth in wind path-traced with a fabric's maps under the "video" environment; see
+    write_appearance_scene. The motion is saft's simulator's (benchmark_scenes scenario "a", on the
+    template's own mesh) or, with motion = "newton", NVIDIA Newton's (independent_scenes scenario "gust":
+    hanging from its top edge, a late gust from behind billows it towards the camera; on a `gt_grid`-sided
+    mesh finer than the template, at the scenario's 30 fps, so `frame_dt` is not used). start > 0 drops the
+    first `start` simulated frames: frame 0 (and the template) is then the cloth already moved by the wind,
+    curved and shaded across (issue 28: a frame 0 whose folds the frame-0 irradiance has to divide out)."""
 
     fabric: str = "plaid"
     frames: int = 16
@@ -148,7 +156,7 @@ class AppearanceSceneSpec:
     height: int = 120
     grid: int = 17                 # template vertices per side
     size: float = 0.4              # metres
-    frame_dt: float = 0.02
+    frame_dt: float = 0.02         # saft's motion only (Newton's keeps its scenario's 1/30 s)
     spp: int = 64                  # samples per pixel of the video
     max_depth: int = 3             # direct light with shadows + one indirect bounce
     map_size: int = 512
@@ -156,6 +164,8 @@ class AppearanceSceneSpec:
     env_width: int = 128
     seed: int = 0
     start: int = 0                 # simulated frames before frame 0 (0: frame 0 is the flat rest shape)
+    motion: Literal["saft", "newton"] = "saft"   # which simulator moves the cloth
+    gt_grid: int = 40              # motion "newton": ground-truth mesh vertices per side
 
 
 def appearance_camera(spec: AppearanceSceneSpec) -> Camera:
@@ -168,9 +178,14 @@ def appearance_camera(spec: AppearanceSceneSpec) -> Camera:
 
 
 def appearance_motion(spec: AppearanceSceneSpec, device="cpu") -> tuple[QuadMesh, np.ndarray, np.ndarray]:
-    """(template, vertices (frames, V, 3), held vertices) of the scene: scenario "a" simulated for
+    """(template, vertices (frames, V, 3) on the template, held vertices) of the scene: its simulator run for
     start + frames frames, the first `start` dropped; the template is frame 0's shape (the rest shape itself
-    when start = 0; else the billowed cloth, as a real video's template is its first frame)."""
+    when start = 0; else the moved cloth, as a real video's template is its first frame). With Newton's
+    motion the vertices are the ground truth resampled to the template (newton_motion)."""
+    if spec.motion == "newton":
+        return newton_motion(spec)[:3]
+    if spec.motion != "saft":
+        raise ValueError(f"unknown motion {spec.motion!r} (saft or newton)")
     sim = BenchSceneSpec(grid=spec.grid, size=spec.size, frames=spec.start + spec.frames, frame_dt=spec.frame_dt,
                          seed=spec.seed)
     template, positions, held = simulate("a", sim, device)
@@ -180,37 +195,83 @@ def appearance_motion(spec: AppearanceSceneSpec, device="cpu") -> tuple[QuadMesh
     return template, positions, held
 
 
+def newton_motion(spec: AppearanceSceneSpec) -> tuple[QuadMesh, np.ndarray, np.ndarray, QuadMesh, np.ndarray, float]:
+    """Newton's cloth for the scene (independent_scenes: scenario "gust", its `simulate_independent` on a
+    spec.gt_grid² mesh, the template spec.grid²; both grids over the same material square and UV layout):
+    (template, the ground truth resampled to the template's vertices (frames, V, 3) (the same material
+    points, as independent_scenes builds its template; the "true motion" phase 3 is fitted on), held
+    template vertices (the top edge), the ground-truth mesh, its positions (frames, V_gt, 3), frame_dt).
+    Both meshes are frame 0's shape (after `start` dropped frames)."""
+    ind = IndependentSceneSpec(gt_grid=spec.gt_grid, grid=spec.grid, size=spec.size, frames=spec.start + spec.frames,
+                               seed=spec.seed)
+    sc = scenario("gust", ind)
+    gt, template = meshes(sc, ind)
+    truth = simulate_independent(sc, gt, ind)[spec.start:]
+    n = spec.gt_grid
+    on_template = np.stack([resample_grid(p.reshape(n, n, 3), spec.grid) for p in truth])
+    return (template.with_vertices(on_template[0].copy()), on_template, _indices(sc.held, spec.grid, sc.clip),
+            gt.with_vertices(truth[0].copy()), truth, 1.0 / sc.fps)
+
+
+def scene_info(spec: AppearanceSceneSpec) -> dict:
+    """The identity written into a scene folder's DONE_FILE: a folder with the same one is kept. The fields
+    added later are left out at their old value, so that the folders written before them stay valid."""
+    info = {"kind": "appearance", "spec": asdict(spec)}
+    if not spec.start:
+        del info["spec"]["start"]
+    if spec.motion == "saft":
+        del info["spec"]["motion"], info["spec"]["gt_grid"]
+    return json.loads(json.dumps(info))
+
+
 def write_appearance_scene(folder, spec: AppearanceSceneSpec = AppearanceSceneSpec(), device="cpu"):
     """Simulate, render and write one scene folder with appearance ground truth (native layout, README
     "Scene format", plus ``appearance_gt/``: base_color.png (sRGB), roughness.png, metallic.png (linear),
     envmap_video.exr, envmap_unseen.exr (linear radiance), appearance_gt.json; gt_vertices.npy (F, V, 3);
     gt/frame_*.npy surface samples, so that `saft evaluate` scores the geometry too).
+    With Newton's motion the video is rendered from the fine ground-truth mesh, whose rest topology and UVs
+    are written as gt_mesh.obj (gt_vertices.npy and gt/ are that mesh's), and the truth resampled to the
+    template as gt_vertices_template.npy (TEMPLATE_MOTION_FILE).
     A folder already written from this very spec is kept. Returns the folder."""
     folder = Path(folder)
-    info = {"kind": "appearance", "spec": asdict(spec)}
-    if not spec.start:  # the folders written before `start` existed stay valid
-        del info["spec"]["start"]
+    info = scene_info(spec)
     try:
-        if json.loads((folder / DONE_FILE).read_text()) == json.loads(json.dumps(info)):
+        if json.loads((folder / DONE_FILE).read_text()) == info:
             return folder
     except (OSError, ValueError):
         pass
-    template, positions, held = appearance_motion(spec, device)
+    if spec.motion == "newton":
+        template, on_template, held, truth_mesh, truth, frame_dt = newton_motion(spec)
+    else:
+        template, truth, held = appearance_motion(spec, device)
+        truth_mesh, on_template, frame_dt = template, None, spec.frame_dt
     camera = appearance_camera(spec)
     base, rough, metal = fabric_maps(spec.fabric, spec.map_size, spec.seed)
     env = environment_map("video", spec.env_height, spec.env_width)
-    rgb, mask = path_trace(template, positions, camera, (base, rough, metal), env, spec.spp, spec.max_depth, spec.seed,
+    rgb, mask = path_trace(truth_mesh, truth, camera, (base, rough, metal), env, spec.spp, spec.max_depth, spec.seed,
                            device)
     scene = Scene(name=f"appearance_{spec.fabric}", template=template, camera=camera,
                   frames=FrameSequence((), None, spec.width, spec.height), texture=None, pinned=held,
-                  frame_dt=spec.frame_dt, gravity=GRAVITY)
+                  frame_dt=frame_dt, gravity=GRAVITY)
     unseen = environment_map("unseen", spec.env_height, spec.env_width)
 
     def extra(tmp: Path) -> None:
         write_appearance_ground_truth(tmp / APPEARANCE_GT_DIR, base, rough, metal, env, unseen,
                                       {"fabric": spec.fabric, "max_depth": spec.max_depth})
+        if on_template is not None:
+            write_obj(tmp / GT_MESH_FILE, truth_mesh, comment="the ground-truth mesh at frame 0 (gt_vertices.npy's)")
+            np.save(tmp / TEMPLATE_MOTION_FILE, on_template.astype(np.float32))
 
     rng = np.random.default_rng(spec.seed + 1)
-    gt_points = [sample_surface(p, template.triangles, 4000, rng) for p in positions]
-    write_scene_folder(folder, scene, rgb, mask, gt_points, positions, info, extra=extra)
+    gt_points = [sample_surface(p, truth_mesh.triangles, 4000, rng) for p in truth]
+    write_scene_folder(folder, scene, rgb, mask, gt_points, truth, info, extra=extra)
     return folder
+
+
+def true_motion_on_template(folder) -> np.ndarray:
+    """(F, V, 3) float64: the scene's true motion on the template's vertices (what phase 3 is fitted on in
+    the "true motion" row): gt_vertices_template.npy where the truth has its own finer mesh, else
+    gt_vertices.npy (the truth is the template's)."""
+    folder = Path(folder)
+    path = folder / TEMPLATE_MOTION_FILE
+    return np.load(path if path.is_file() else folder / "gt_vertices.npy").astype(np.float64)
