@@ -8,7 +8,7 @@ import pytest
 
 from saft.scene import load_scene
 from saft.synthetic.hanging_cloth import grid_template
-from saft.synthetic.independent_scenes import (IndependentSceneSpec, _indices, resample_grid, meshes, scenario,
+from saft.synthetic.independent_scenes import (IndependentSceneSpec, grid_indices, resample_grid, meshes, scenario,
                                                scene_names, simulate_matched, split_name, write_scenario)
 from saft.synthetic.newton_cloth import AIR_DENSITY, NewtonClothParams, aero_forces
 
@@ -39,8 +39,8 @@ def test_grids_indices_and_names():
     field = np.stack(np.meshgrid(np.linspace(0, 1, 7), np.linspace(0, 2, 7), indexing="ij"), -1)
     out = resample_grid(field, 4)  # a linear field is resampled exactly
     np.testing.assert_allclose(out[5], [1 / 3, 2 / 3])
-    assert list(_indices([(0.0, 0.0), (0.0, 1.0)], 5)) == [0, 4]
-    assert list(_indices([(0.0, 0.0)], 5, clip=0.25)) == [0, 1, 5]  # the diagonal neighbour is 0.35 away
+    assert list(grid_indices([(0.0, 0.0), (0.0, 1.0)], 5)) == [0, 4]
+    assert list(grid_indices([(0.0, 0.0)], 5, clip=0.25)) == [0, 1, 5]  # the diagonal neighbour is 0.35 away
     for name in scene_names():
         scen, sim, variant = split_name(name)
         assert f"{scen}_{sim}_{variant}" == name

@@ -26,7 +26,7 @@ from saft.scene.scene import Scene
 from saft.synthetic.benchmark_scenes import DONE_FILE, GRAVITY, BenchSceneSpec, write_scene_folder, path_trace, simulate
 from saft.synthetic.fabrics import environment_map, fabric_maps
 from saft.synthetic.hanging_cloth import grid_template
-from saft.synthetic.independent_scenes import (IndependentSceneSpec, _indices, meshes, resample_grid, scenario,
+from saft.synthetic.independent_scenes import (IndependentSceneSpec, grid_indices, meshes, resample_grid, scenario,
                                                simulate_independent)
 
 TEMPLATE_MOTION_FILE = "gt_vertices_template.npy"  # Newton's motion resampled to the template (phase 3's truth)
@@ -209,7 +209,7 @@ def newton_motion(spec: AppearanceSceneSpec) -> tuple[QuadMesh, np.ndarray, np.n
     truth = simulate_independent(sc, gt, ind)[spec.start:]
     n = spec.gt_grid
     on_template = np.stack([resample_grid(p.reshape(n, n, 3), spec.grid) for p in truth])
-    return (template.with_vertices(on_template[0].copy()), on_template, _indices(sc.held, spec.grid, sc.clip),
+    return (template.with_vertices(on_template[0].copy()), on_template, grid_indices(sc.held, spec.grid, sc.clip),
             gt.with_vertices(truth[0].copy()), truth, 1.0 / sc.fps)
 
 

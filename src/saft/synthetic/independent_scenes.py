@@ -182,7 +182,7 @@ def resample_grid(field: np.ndarray, m: int) -> np.ndarray:
     return interp(np.stack([rr.ravel(), cc.ravel()], axis=1))
 
 
-def _indices(points: list[tuple[float, float]], m: int, clip: float = 0.0) -> np.ndarray:
+def grid_indices(points: list[tuple[float, float]], m: int, clip: float = 0.0) -> np.ndarray:
     """Vertex indices (row-major, m per row) nearest to material points (row, col) in 0..1, and those within
     `clip` (material units) of them: a corner held by a clip, not by one vertex (a point load stretches the
     membrane around it without bound)."""
@@ -212,10 +212,10 @@ def _vertex_masses(mesh: QuadMesh, density: float) -> np.ndarray:
 
 def simulate_independent(sc: Scenario, gt: QuadMesh, spec: IndependentSceneSpec) -> np.ndarray:
     """Newton VBD positions (F, V_gt, 3)."""
-    kin = _indices(sc.held, spec.gt_grid, sc.clip)
+    kin = grid_indices(sc.held, spec.gt_grid, sc.clip)
     path = None
     if sc.grab is not None:
-        g = _indices([sc.grab], spec.gt_grid)
+        g = grid_indices([sc.grab], spec.gt_grid)
         kin = np.append(kin, g)
         fixed = gt.vertices[kin[:-1]]
         path = lambda t: np.vstack([fixed, sc.grab_path(t)])  # noqa: E731
@@ -244,10 +244,10 @@ def simulate_matched(sc: Scenario, gt: QuadMesh, tpl: QuadMesh, gt_positions: np
     n, m = spec.gt_grid, spec.grid
     acc = felt_accelerations(gt, gt_positions, sc, spec)
     wind = np.stack([resample_grid(a.reshape(n, n, 3), m) for a in acc])
-    pins = _indices(sc.held, m, sc.clip)
+    pins = grid_indices(sc.held, m, sc.clip)
     targets = None
     if sc.grab is not None:
-        pins = np.append(pins, _indices([sc.grab], m))
+        pins = np.append(pins, grid_indices([sc.grab], m))
         t = np.arange(spec.frames) / sc.fps
         targets = np.repeat(tpl.vertices[pins][None], spec.frames, axis=0)
         targets[:, -1] = np.stack([sc.grab_path(ti) for ti in t])
@@ -291,7 +291,7 @@ def write_scenario(root: str | Path, name: str, spec: IndependentSceneSpec = Ind
     gt, tpl = meshes(sc, spec)
     camera = independent_camera(spec)
     gt_positions = simulate_independent(sc, gt, spec)
-    held = _indices(sc.held, spec.grid, sc.clip)
+    held = grid_indices(sc.held, spec.grid, sc.clip)
     frames = FrameSequence((), None, spec.width, spec.height)
     written = []
     for sim in simulators:
