@@ -74,6 +74,38 @@ def test_evidence_marks_clusters_the_images_cannot_see():
     assert undetermined_note([dict(ev[0], determined=True)]) is None
 
 
+def test_lowest_allowed_walks_down_until_the_frames_rule_a_roughness_out():
+    from saft.appearance.evidence import lowest_allowed
+    costs = {0.9: 0.0, 0.8: 0.001, 0.7: 0.004, 0.6: 0.02, 0.5: 0.0}   # 0.5 is never reached: 0.6 stops the walk
+    assert lowest_allowed(costs.get, 0.005) == 0.7
+    assert lowest_allowed(lambda r: 1.0, 0.005) == 1.0
+    assert lowest_allowed(lambda r: 0.0, 0.005) == 0.2
+
+
+def test_band_gives_an_undetermined_cluster_the_middle_of_what_the_frames_allow():
+    """Cluster 1's roughness is seen only below 0.55 (a fake renderer: a highlight appears there), so its
+    range is [0.6, 1] and it gets 0.8, metallic 0; the determined cluster 0 keeps its fit."""
+    tex = _two_colour_texture(32)
+    model = GuidedMaps(tex, size=32, gain_grid=2, clusters=2, init_roughness=0.3, init_metallic=0.2)
+    target = model()["roughness"][model.members[0] > 0].mean()
+    m0, m1 = model.members[0], model.members[1]
+
+    def render(f, d, r, m, e, spp, seed):
+        r1 = (r * m1).sum() / m1.sum()
+        return torch.stack([(r * m0).sum() / m0.sum(), torch.relu(0.55 - r1), torch.zeros(())])
+
+    def loss(f, img):
+        return (img[0] - target) ** 2 + img[1] + 1e-3
+
+    ev = cluster_evidence(model, torch.zeros(2, 4, 3), render, [0, 1], loss, threshold=0.01, band=True)
+    assert [e["determined"] for e in ev] == [True, False]
+    assert ev[1]["roughness_range"] == [0.6, 1.0] and ev[1]["roughness"] == pytest.approx(0.8)
+    values = model.cluster_values()
+    assert values["roughness"][1].item() == pytest.approx(0.8, abs=1e-5) and values["metallic"][1] < 1e-6
+    assert values["roughness"][0] < 0.5
+    assert "0.6-1" in undetermined_note(ev)
+
+
 @pytest.mark.parametrize("divide, epochs, margin", [("gain", 40, 0.2), ("irradiance", 80, 0.15)])
 def test_guided_fit_beats_the_texture_only_baseline_on_a_tiny_satin(tmp_path, divide, epochs, margin):
     """End to end on a tiny ground-truth scene: a satin's low roughness is found (the texture-only

@@ -60,6 +60,12 @@ class AppearanceConfig:
     # matte is set to matte and reported undetermined (appearance.evidence); 0 = no test
     evidence_threshold: float = 0.0
     evidence_spp: int = 4
+    # evidence_threshold > 0: an undetermined cluster gets roughness 1 ("matte", the texture-only assumption)
+    # or ("band") the middle of the roughness range its frames do not rule out (appearance.evidence). Off:
+    # "band" lowers the roughness MAE wherever a cluster is undetermined (print 0.170 -> 0.137 and 0.135 ->
+    # 0.105, lamé 0.200 -> 0.196 and 0.214 -> 0.165 at seeds 0 / 1, saft's motion) but the relit views lose
+    # 0.05-0.38 dB (BENCHMARKS.md, "What the frames allow for an undetermined cluster's roughness")
+    undetermined_roughness: Literal["matte", "band"] = "matte"
     tile_size: int = 128                 # decoder tile side (4·2^k)
     num_tiles: int = 16                  # tiles on a square grid (16 → 4×4)
     tile_overlap: int = 10               # → maps of 4·(128−10) = 472 px
@@ -114,6 +120,8 @@ class AppearanceConfig:
             bad("epochs", "must be >= 1")
         if not (0 < self.lr_final_factor <= 1):
             bad("lr_final_factor", "must lie in (0, 1]")
+        if self.undetermined_roughness not in ("matte", "band"):
+            bad("undetermined_roughness", "must be 'matte' or 'band'")
         if self.maps not in ("decoder", "texels", "guided"):
             bad("maps", "must be 'decoder', 'texels' or 'guided'")
         if self.diffuse_shading not in ("gain", "irradiance"):

@@ -8,6 +8,12 @@ that the Monte Carlo noise cancels in the difference. When the fitted material l
 by less than ``threshold`` × the cluster's share of the texture (relative: a cluster of threads covering a
 fifth of the cloth can change only about a fifth of the loss), the data does not insist: the cluster is
 set to matte and marked undetermined.
+
+Matte (roughness 1) is only one of the roughnesses such a cluster cannot be told from: a rough dielectric
+shows no highlight either. With ``band`` the test goes on down a ladder of roughnesses (0.9, 0.8, …) until the
+frames rule one out (it raises the loss by more than the same threshold × area over matte), and the cluster
+gets the middle of the range [lowest not ruled out, 1]: the value whose largest error over every roughness
+the video allows is smallest. The range itself is reported with it.
 """
 
 from __future__ import annotations
@@ -20,12 +26,15 @@ import torch
 
 @torch.no_grad()
 def cluster_evidence(model, env: torch.Tensor, render: Callable, frames: list[int], loss: Callable,
-                     spp: int = 4, threshold: float = 0.01, dielectric_below: float = 0.05) -> list[dict]:
+                     spp: int = 4, threshold: float = 0.01, dielectric_below: float = 0.05,
+                     band: bool = False) -> list[dict]:
     """One dict per cluster: area, fitted roughness / metallic, relative loss gain over matte, determined.
 
     render(frame, diffuse, roughness, metallic, env, spp, seed) → linear image; loss(frame, image) → scalar.
     Clusters judged undetermined are set to matte in `model` (in place); determined ones whose metallic
     is below `dielectric_below` are set to metallic 0 (a few per cent of metal is noise, not a material).
+    With band, an undetermined cluster gets the middle of the roughness range the frames do not rule out
+    (roughness_range in its dict) instead of 1.
     """
     maps = model(env)
     vals = {k: v.detach().clone() for k, v in model.cluster_values().items()}
@@ -55,7 +64,41 @@ def cluster_evidence(model, env: torch.Tensor, render: Callable, frames: list[in
         elif row["metallic"] < dielectric_below:
             model.set_dielectric(row["cluster"])
             row["metallic"] = 0.0
+    if band and any(not row["determined"] for row in out):
+        _roughness_bands(model, env, total, out, threshold)
     return out
+
+
+ROUGHNESS_LADDER = (0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2)
+
+
+def lowest_allowed(cost: Callable[[float], float], limit: float, ladder=ROUGHNESS_LADDER) -> float:
+    """Walking down `ladder` from 1, the last roughness whose cost (relative loss over matte) is ≤ limit."""
+    lowest = 1.0
+    for r in ladder:
+        if cost(r) > limit:
+            break
+        lowest = r
+    return lowest
+
+
+def _roughness_bands(model, env, total: Callable, out: list[dict], threshold: float) -> None:
+    """Each undetermined cluster to the middle of the roughness range its frames allow (see the module)."""
+    maps = model(env)
+    matte = total(maps["roughness"], maps["metallic"])
+    for row in out:
+        if row["determined"]:
+            continue
+        member = model.members[row["cluster"]]
+
+        def cost(r: float) -> float:
+            rough = maps["roughness"] * (1 - member) + r * member
+            return (total(rough, maps["metallic"] * (1 - member)) - matte) / max(matte, 1e-12)
+
+        lowest = lowest_allowed(cost, threshold * row["area"])
+        row["roughness_range"] = [lowest, 1.0]
+        row["roughness"] = 0.5 * (lowest + 1.0)
+        model.set_roughness(row["cluster"], row["roughness"])
 
 
 def undetermined_note(evidence: list[dict]) -> str | None:
@@ -63,6 +106,11 @@ def undetermined_note(evidence: list[dict]) -> str | None:
     area = float(np.sum([e["area"] for e in evidence if not e["determined"]]))
     if area <= 0:
         return None
-    return (f"{100 * area:.0f} % of the texture (clusters {[e['cluster'] for e in evidence if not e['determined']]}) "
-            "showed no specular evidence in the video: roughness and metallic there are not determined by the "
-            "data and were set to matte (roughness 1, metallic 0)")
+    rows = [e for e in evidence if not e["determined"]]
+    text = (f"{100 * area:.0f} % of the texture (clusters {[e['cluster'] for e in rows]}) showed no specular "
+            "evidence in the video: roughness and metallic there are not determined by the data")
+    if any("roughness_range" in e for e in rows):
+        ranges = ", ".join(f"cluster {e['cluster']}: {e['roughness_range'][0]:.1f}-1" for e in rows)
+        return (text + "; metallic was set to 0 and roughness to the middle of the range the video cannot "
+                f"tell apart ({ranges})")
+    return text + " and were set to matte (roughness 1, metallic 0)"

@@ -320,7 +320,8 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
 
         evidence = cluster_evidence(model, env_now, render_frame, test_frames,
                                     lambda f, img: masked_linearised_srgb_mse(img, lin_t[f], slope_t[f], mask_t[f]),
-                                    spp=cfg.evidence_spp, threshold=cfg.evidence_threshold)
+                                    spp=cfg.evidence_spp, threshold=cfg.evidence_threshold,
+                                    band=cfg.undetermined_roughness == "band")
     final_state = state(cfg.epochs)
     if checkpoint is not None:
         checkpoint(final_state)

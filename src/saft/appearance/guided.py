@@ -155,6 +155,12 @@ class GuidedMaps(nn.Module):
         self.metal_logit[k] = -20.0
 
     @torch.no_grad()
+    def set_roughness(self, k: int, roughness: float) -> None:
+        """Cluster k to this roughness, metallic 0 (appearance.evidence's band for an undetermined cluster)."""
+        self.rough_logit[k] = 20.0 if roughness >= 1.0 else _logit(roughness)
+        self.metal_logit[k] = -20.0
+
+    @torch.no_grad()
     def set_dielectric(self, k: int) -> None:
         """Cluster k to metallic 0 (a fitted metallic of a few per cent is noise, not a material)."""
         self.metal_logit[k] = -20.0
