@@ -148,6 +148,11 @@ class ShapeConfig:
     # median 10.2 -> 7.8; one run each, the flag and one corner repeated under perturbation), but R1 lost at
     # perturbations 1 and 3: 0.425 -> 0.461, 0.435 -> 0.459 (BENCHMARKS.md, "Soft track confidence, …").
     track_drift_scale: float = 0.0
+    # Each track weighs min(1, q / track_texture) in the track loss (0 = off), q the Shi–Tomasi texture
+    # strength at its start in frame 0 in units of the video's noise (saft.reconstruct.tracks.
+    # texture_confidence): tracks on a plain fabric, which follow the shading, weigh little. Median q of the
+    # tracks: curved satin 0.13, cotton 0.02, Newton scenes 1.4-1.8, R1 27, the demo 180. MEASUREMENT TBD.
+    track_texture: float = 0.0
     # Skip a track where the current reconstruction hides its vertex behind another part of the cloth by
     # more than the mean edge length (a fold the flow's forward-backward check let through).
     track_occlusion: bool = True
