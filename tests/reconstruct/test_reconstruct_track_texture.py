@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import torch
 
-from saft.reconstruct.tracks import (VertexTracks, noise_level, project, texture_confidence, texture_strength,
-                                     track_loss)
+from saft.reconstruct.tracks import (VertexTracks, noise_level, project, starts_moving, texture_confidence,
+                                     texture_strength, track_loss)
 from saft.scene.camera import look_at
 from saft.synthetic import procedural_texture
 
@@ -72,3 +72,19 @@ def test_track_strength_scales_the_loss_absolutely():
 def test_a_reconstruction_with_texture_confidence_runs(tiny_reconstruction):
     out = tiny_reconstruction(["shape.track_texture=1e6"])
     assert (out / "log.csv").is_file()
+
+
+def _moving_square(still_frames: int, n: int = 6) -> np.ndarray:
+    """(n, 40, 40) masks of a square that stands for `still_frames` frames, then moves 2 px per frame."""
+    masks = np.zeros((n, 40, 40))
+    for t in range(n):
+        x = 5 + 2 * max(0, t - still_frames)
+        masks[t, 10:30, x:x + 15] = 1.0
+    return masks
+
+
+def test_a_clip_starts_moving_where_its_silhouette_changes_from_frame_0():
+    assert starts_moving(_moving_square(still_frames=0))
+    assert not starts_moving(_moving_square(still_frames=1))   # at rest for a frame, then moving
+    assert not starts_moving(_moving_square(still_frames=0)[:1])
+    assert not starts_moving(np.ones((4, 8, 8)))                # nothing moves at all

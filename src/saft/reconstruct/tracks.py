@@ -46,7 +46,11 @@ strongest quarter is as often > 3 px off as the weakest, a moving highlight's ed
 but between clips it does: the median over a clip's tracks is 0.02 on the plain cotton, 0.13 on the satin,
 1.4–1.8 on the printed Newton scenes, 27 on R1. So with shape.track_texture = Q0 > 0 the whole track loss
 weighs min(1, Q / Q0), Q that median (texture_confidence): the tracks of a plain fabric weigh little, those
-of a printed cloth are unchanged.
+of a printed cloth are unchanged. Only where the clip starts moving (starts_moving: the silhouette's change from
+frame 0 to 1 is at least START_SHARE of its median change between frames; 0.03 on the appearance clips that
+start at rest, 0.73 on those cut at frame 24): from rest the flow's first steps are small, and the tracks of
+the same plain fabrics helped as often as they hurt there (BENCHMARKS.md, "Track confidence on clips that
+start moving").
 
     L_track = mean over valid (frame, vertex) of huber(|π(x_v,t) − p_v,t| / s)
 
@@ -221,6 +225,21 @@ def texture_strength(rgb0: np.ndarray, mask0: np.ndarray, points: np.ndarray, bl
     return bilinear_sample(lam, points) / sigma ** 2
 
 
+# starts_moving's threshold: the silhouette's first change / its median change is 0.03 on the five appearance
+# clips that start at rest, 0.08 on the demo, 0.73 on the same clips cut at frame 24 (BENCHMARKS.md).
+START_SHARE = 0.3
+
+
+def starts_moving(mask: np.ndarray, share: float = START_SHARE) -> bool:
+    """Whether a clip (mask (N, H, W) in [0, 1]) starts in motion: the silhouette's change from frame 0 to 1
+    (summed |Δmask|) is at least `share` times its median change between consecutive frames. Unlike the
+    tracks' first step it does not depend on the texture."""
+    if mask.shape[0] < 2:
+        return False
+    change = np.abs(np.diff(mask.astype(np.float64), axis=0)).sum(axis=(1, 2))
+    return bool(change[0] >= share * np.median(change) and change[0] > 0)
+
+
 def texture_confidence(rgb0: np.ndarray, mask0: np.ndarray, points: np.ndarray, valid: np.ndarray,
                        q0: float) -> float:
     """Weight min(1, Q / q0) of a clip's track loss, Q the median texture_strength of the tracks that start
@@ -265,7 +284,8 @@ def compute_vertex_tracks(rgb: torch.Tensor, mask: torch.Tensor, template: torch
     """Tracks of every template vertex through the target video (rgb (N, H, W, 3), mask (N, H, W)); with
     jump_ratio > 0 a track also ends at its first colour jump (end_at_appearance_jumps), with drift > 0 where
     its chromaticity drifts from frame 0's (end_at_colour_drift); with drift_scale > 0 each track-frame is
-    weighted by drift_confidence; with texture > 0 the whole loss by texture_confidence."""
+    weighted by drift_confidence; with texture > 0, where the clip starts moving, the whole loss by
+    texture_confidence."""
     rgb_np = rgb.detach().cpu().numpy()
     mask_np = mask.detach().cpu().numpy()
     start, ok = visible_vertices(template, camera, mask_np[0], depth0.detach().cpu().numpy())
@@ -273,7 +293,8 @@ def compute_vertex_tracks(rgb: torch.Tensor, mask: torch.Tensor, template: torch
     valid = end_at_appearance_jumps(rgb_np, pts, valid, jump_ratio, jump_floor)
     valid = end_at_colour_drift(rgb_np, pts, valid, drift)
     weight = drift_confidence(rgb_np, pts, drift_scale)
-    strength = texture_confidence(rgb_np[0], mask_np[0], start, ok, texture)
+    strength = texture_confidence(rgb_np[0], mask_np[0], start, ok, texture) if texture > 0 and \
+        starts_moving(mask_np) else 1.0
     if strength < 1.0:
         log.info("point tracks on weak texture: the track loss weighs %.3g (shape.track_texture)", strength)
 
@@ -326,5 +347,5 @@ def track_loss(positions: torch.Tensor, tracks: VertexTracks, camera: Camera, hu
 
 
 __all__ = ["VertexTracks", "compute_vertex_tracks", "end_at_colour_drift", "texture_strength", "texture_confidence",
-           "noise_level", "track_loss", "hidden_vertices", "track_points", "project", "visible_vertices",
+           "noise_level", "starts_moving", "START_SHARE", "track_loss", "hidden_vertices", "track_points", "project", "visible_vertices",
            "dense_flow", "bilinear_sample", "to_gray_u8"]
