@@ -43,14 +43,14 @@ or none. texture_strength gives it for each track's start, in units of the video
 0's luma (Gaussian σ = 1.5 px, a 15 × 15 window) divided by σ², σ the noise level of frame 0 inside the
 mask (Immerkær's estimator). Within one clip it hardly tells good tracks from bad (on the curved satin the
 strongest quarter is as often > 3 px off as the weakest, a moving highlight's edge being strong texture),
-but between clips it does: the median over a clip's tracks is 0.02 on the plain cotton, 0.13 on the satin,
+but between clips it does: the median over a clip's tracks is 0.02 on the plain cotton, 0.12 on the satin,
 1.1–1.8 on the printed Newton scenes, 27 on R1. So with shape.track_texture = Q0 > 0 the whole track loss
 weighs min(1, Q / Q0), Q that median (texture_confidence): the tracks of a plain fabric weigh little, those
 of a printed cloth are unchanged. Only where the clip starts moving (starts_moving: the silhouette's change from
 frame 0 to 1 is at least START_SHARE of its median change between frames; 0.03 on the appearance clips that
-start at rest, 0.73 on those cut at frame 24): from rest the flow's first steps are small, and the tracks of
-the same plain fabrics helped as often as they hurt there (BENCHMARKS.md, "Track confidence on clips that
-start moving").
+start at rest, 0.73 on those cut at frame 24): from rest the flow's first steps are small, and weighing the
+same plain fabrics' tracks down there helped as often as it hurt (BENCHMARKS.md, "Track confidence on clips
+that start moving").
 
     L_track = mean over valid (frame, vertex) of huber(|π(x_v,t) − p_v,t| / s)
 
