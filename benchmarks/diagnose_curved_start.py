@@ -7,8 +7,9 @@ Three checks, each printing its numbers (BENCHMARKS.md, "A flat rest shape for c
   once with the template (frame START) as the rest shape and once flattened (physics.rest_shape), with the
   true velocity or none, with the true or saft's default physical parameters, or with no wind. Prints the
   mean vertex distance to the truth (cm) and the cloth's mean z (towards the camera) at the last frame.
-* ``shape SCENE OUT [key=value ...]``: saft's texture + shape phases on a scene (phase 3 off, as
-  bench_appearance's own motion, one torch thread) with config overrides; prints the mean and per-frame CD2.
+* ``shape SCENE OUT [key=value ...] [--noise-seed K]``: saft's texture + shape phases on a scene (phase 3 off,
+  as bench_appearance's own motion, one torch thread) with config overrides; prints the mean and per-frame
+  CD2. --noise-seed K > 0 moves the template by 1e-9 m noise of seed K (a repeat of the deterministic run).
 * ``tracks SCENE ...``: the shape phase's point tracks (default settings), started at the true projections
   of every vertex, against the true projections per frame (pixels; no visibility test).
 
@@ -77,13 +78,16 @@ def forward(start: int, frames: int) -> None:
               f"| {err.mean():.2f} | {x[-1, :, 2].mean():.3f} |")
 
 
-def shape(scene_dir: Path, out: Path, sets: list[str]) -> None:
+def shape(scene_dir: Path, out: Path, sets: list[str], noise_seed: int = 0) -> None:
     t = time.time()
     if not (out / "timings.json").is_file():
         cfg = load_saft_config(None, ['run.device="cpu"', "run.threads=1", "appearance.enabled=false", *sets])
-        reconstruct(load_scene(scene_dir), cfg, out, overwrite=True, quiet=True)
+        scene = load_scene(scene_dir)
+        reconstruct(scene.with_template_noise(noise_seed) if noise_seed else scene, cfg, out, overwrite=True,
+                    quiet=True)
     m = evaluate_result_dir(out, GroundTruthSpec(scene_dir / "gt"), write=True)
-    print(json.dumps({"scene": str(scene_dir), "sets": sets, "mean_cd2": m["mean"]["cd2_1e-4m2"],
+    print(json.dumps({"scene": str(scene_dir), "sets": sets, "noise_seed": noise_seed,
+                      "mean_cd2": m["mean"]["cd2_1e-4m2"],
                       "per_frame": [round(x, 3) for x in m["per_frame"]["cd2_1e-4m2"]],
                       "seconds": round(time.time() - t, 1)}))
 
@@ -119,6 +123,7 @@ def main(argv=None) -> int:
     s.add_argument("scene", type=Path)
     s.add_argument("out", type=Path)
     s.add_argument("sets", nargs="*")
+    s.add_argument("--noise-seed", type=int, default=0)
     t = sub.add_parser("tracks")
     t.add_argument("scenes", nargs="+")
     a = ap.parse_args(argv)
@@ -126,7 +131,7 @@ def main(argv=None) -> int:
     if a.check == "forward":
         forward(a.start, a.frames)
     elif a.check == "shape":
-        shape(a.scene, a.out, a.sets)
+        shape(a.scene, a.out, a.sets, a.noise_seed)
     else:
         tracks(a.scenes)
     return 0

@@ -148,6 +148,16 @@ class ShapeConfig:
     # median 10.2 -> 7.8; one run each, the flag and one corner repeated under perturbation), but R1 lost at
     # perturbations 1 and 3: 0.425 -> 0.461, 0.435 -> 0.459 (BENCHMARKS.md, "Soft track confidence, …").
     track_drift_scale: float = 0.0
+    # Where the clip starts moving (the silhouette's first change >= 0.3 of its median change), the whole
+    # track loss weighs min(1, Q / track_texture), Q the median Shi–Tomasi texture strength of the tracks'
+    # starts in frame 0 in units of the video's noise (saft.reconstruct.tracks.texture_confidence; 0 = off):
+    # on a plain fabric the flow follows the shading. Q: cotton 0.02, lamé 0.02-0.04, plaid 0.01, satin
+    # 0.12-0.15, print 0.79-1.09, Newton scenes 1.10-1.84, R1 27, the demo 112. 1: the appearance clips cut
+    # at frame 24 satin 38.70 -> 3.50, cotton 86.44 -> 27.81, plaid 10.28 -> 0.95, lamé 27.12 -> 4.76, print
+    # 0.300 -> 0.298 (0.5: satin 40.8, the satin needs the small weight); every other scene measured
+    # identical (weight 1). Without the gate the same clips from rest: plaid +53 %, cotton +20 % (median of
+    # 3), satin and lamé x0.36 / x0.24 (BENCHMARKS.md, "Track confidence on clips that start moving").
+    track_texture: float = 1.0
     # Skip a track where the current reconstruction hides its vertex behind another part of the cloth by
     # more than the mean edge length (a fold the flow's forward-backward check let through).
     track_occlusion: bool = True

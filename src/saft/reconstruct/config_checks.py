@@ -59,6 +59,7 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "shape.track_jump_floor": (0, 1, True),
     "shape.track_drift": (0, 1, True),
     "shape.track_drift_scale": (0, 1, True),
+    "shape.track_texture": (0, INF, True),
     "shape.final_lr_fraction": (0, 1, False),
     "shape.backtrack_ratio": (0, INF, True),
     "shape.backtrack_decay": (0, 1, False),

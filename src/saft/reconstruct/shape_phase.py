@@ -418,7 +418,7 @@ def shape_tracks(ctx: PhaseContext, cfg: ShapeConfig, texture: torch.Tensor, tem
         depth0 = ctx.render(ctx.template_positions[None].to(torch.float32), texture).depth[0]
     return compute_vertex_tracks(ctx.target_rgb, ctx.target_mask, template, ctx.camera, depth0,
                                  cfg.track_fb_threshold, cfg.track_reanchor_radius, cfg.track_jump_ratio,
-                                 cfg.track_jump_floor, cfg.track_drift, cfg.track_drift_scale)
+                                 cfg.track_jump_floor, cfg.track_drift, cfg.track_drift_scale, cfg.track_texture)
 
 
 def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, phys: PhysicsConfig,

@@ -34,6 +34,24 @@ without colour never triggers it. Instead of that cut, shape.track_drift_scale w
 exp(−(d / scale)²), d the largest drift so far (drift_confidence; off by default: it helps the
 independent-simulator scenes and costs R1, BENCHMARKS.md).
 
+Flow is only as good as the texture it follows: on a plain fabric (a matte cotton, a smooth satin) DIS
+follows the shading and the moving highlights, and the tracks of a clip that starts in motion end up several
+pixels off (BENCHMARKS.md, "A flat rest shape for clips that start curved"). Shi and Tomasi's measure of how
+well a point can be tracked is the smaller eigenvalue λ_min of the structure tensor (the summed outer
+products of the image gradient) in a window around it; it is small where the image varies in one direction
+or none. texture_strength gives it for each track's start, in units of the video's noise: λ_min of frame
+0's luma (Gaussian σ = 1.5 px, a 15 × 15 window) divided by σ², σ the noise level of frame 0 inside the
+mask (Immerkær's estimator). Within one clip it hardly tells good tracks from bad (on the curved satin the
+strongest quarter is as often > 3 px off as the weakest, a moving highlight's edge being strong texture),
+but between clips it does: the median over a clip's tracks is 0.02 on the plain cotton, 0.12 on the satin,
+1.1–1.8 on the printed Newton scenes, 27 on R1. So with shape.track_texture = Q0 > 0 the whole track loss
+weighs min(1, Q / Q0), Q that median (texture_confidence): the tracks of a plain fabric weigh little, those
+of a printed cloth are unchanged. Only where the clip starts moving (starts_moving: the silhouette's change from
+frame 0 to 1 is at least START_SHARE of its median change between frames; 0.03 on the appearance clips that
+start at rest, 0.73 on those cut at frame 24): from rest the flow's first steps are small, and weighing the
+same plain fabrics' tracks down there helped as often as it hurt (BENCHMARKS.md, "Track confidence on clips
+that start moving").
+
     L_track = mean over valid (frame, vertex) of huber(|π(x_v,t) − p_v,t| / s)
 
 π: the working camera's projection, p: the track, s: the image's larger side in pixels (so the loss is
@@ -42,6 +60,7 @@ in fractions of the image and does not change with the working resolution).
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -51,6 +70,8 @@ from scipy.ndimage import uniform_filter
 from saft.io_utils import bilinear_sample
 from saft.scene.camera import Camera
 
+log = logging.getLogger("saft")
+
 
 @dataclass
 class VertexTracks:
@@ -58,6 +79,7 @@ class VertexTracks:
     valid: torch.Tensor     # (N, V) bool: the track is trusted in that frame
     scale: float            # pixels per unit of the loss (the image's larger side)
     weight: torch.Tensor | None = None   # (N, V) confidence of each track-frame in the loss (None = all 1)
+    strength: float = 1.0   # absolute weight of the whole loss in [0, 1] (texture_confidence), not normalised
 
     def coverage(self) -> np.ndarray:
         """(N,) fraction of the vertices with a valid track in each frame."""
@@ -175,6 +197,58 @@ def drift_confidence(rgb: np.ndarray, points: np.ndarray, scale: float) -> np.nd
     return np.exp(-(colour_drift(rgb, points) / scale) ** 2)
 
 
+def noise_level(gray: np.ndarray, mask: np.ndarray) -> float:
+    """Standard deviation of the noise of a gray image (H, W) inside mask (H, W) >= 0.5, by Immerkær's
+    estimator (1996): the mean absolute response of the Laplacian difference [[1, -2, 1], [-2, 4, -2],
+    [1, -2, 1]] times sqrt(π / 2) / 6, over the mask eroded by 2 pixels (the cloth's outline is no noise)."""
+    import cv2  # opencv-python-headless, as dense_flow
+
+    kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], dtype=np.float64)
+    response = np.abs(cv2.filter2D(gray.astype(np.float64), -1, kernel, borderType=cv2.BORDER_REFLECT))
+    inside = cv2.erode((mask >= 0.5).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    if not inside.any():
+        return 0.0
+    return float(np.sqrt(np.pi / 2) / 6 * response[inside].mean())
+
+
+def texture_strength(rgb0: np.ndarray, mask0: np.ndarray, points: np.ndarray, blur: float = 1.5,
+                     window: int = 15, noise_floor: float = 0.5) -> np.ndarray:
+    """(P,) Shi–Tomasi texture strength at pixel positions `points` (P, 2) of frame 0 (rgb0 (H, W, 3) sRGB,
+    mask0 (H, W)): the smaller eigenvalue of the structure tensor of the 0–255 luma blurred by a Gaussian of
+    σ = `blur` px, summed over a `window` × `window` box (Sobel 3 × 3 gradients, cv2.cornerMinEigenVal),
+    divided by the square of frame 0's noise level (noise_level, never below `noise_floor` gray levels)."""
+    import cv2
+
+    gray = to_gray_u8(rgb0).astype(np.float32)
+    lam = cv2.cornerMinEigenVal(cv2.GaussianBlur(gray, (0, 0), blur), window, 3)
+    sigma = max(noise_level(gray, mask0), noise_floor)
+    return bilinear_sample(lam, points) / sigma ** 2
+
+
+# starts_moving's threshold: the silhouette's first change / its median change is 0.03 on the five appearance
+# clips that start at rest, 0.08 on the demo, 0.73 on the same clips cut at frame 24 (BENCHMARKS.md).
+START_SHARE = 0.3
+
+
+def starts_moving(mask: np.ndarray, share: float = START_SHARE) -> bool:
+    """Whether a clip (mask (N, H, W) in [0, 1]) starts in motion: the silhouette's change from frame 0 to 1
+    (summed |Δmask|) is at least `share` times its median change between consecutive frames. Unlike the
+    tracks' first step it does not depend on the texture."""
+    if mask.shape[0] < 2:
+        return False
+    change = np.abs(np.diff(mask.astype(np.float64), axis=0)).sum(axis=(1, 2))
+    return bool(change[0] >= share * np.median(change) and change[0] > 0)
+
+
+def texture_confidence(rgb0: np.ndarray, mask0: np.ndarray, points: np.ndarray, valid: np.ndarray,
+                       q0: float) -> float:
+    """Weight min(1, Q / q0) of a clip's track loss, Q the median texture_strength of the tracks that start
+    (points (P, 2), valid (P,) bool); 1 for q0 = 0 or no track."""
+    if q0 <= 0 or not valid.any():
+        return 1.0
+    return float(min(1.0, np.median(texture_strength(rgb0, mask0, points[valid])) / q0))
+
+
 def project(points: torch.Tensor, camera: Camera) -> tuple[torch.Tensor, torch.Tensor]:
     """World points (..., 3) → pixel coordinates (..., 2) in `camera`'s image and camera depth (...)."""
     R = torch.as_tensor(camera.world_to_camera[:3, :3], dtype=points.dtype, device=points.device)
@@ -206,11 +280,12 @@ def visible_vertices(template: torch.Tensor, camera: Camera, mask0: np.ndarray, 
 def compute_vertex_tracks(rgb: torch.Tensor, mask: torch.Tensor, template: torch.Tensor, camera: Camera,
                           depth0: torch.Tensor, fb_threshold: float, reanchor_radius: float = 0.0,
                           jump_ratio: float = 0.0, jump_floor: float = 0.03, drift: float = 0.0,
-                          drift_scale: float = 0.0) -> VertexTracks:
+                          drift_scale: float = 0.0, texture: float = 0.0) -> VertexTracks:
     """Tracks of every template vertex through the target video (rgb (N, H, W, 3), mask (N, H, W)); with
     jump_ratio > 0 a track also ends at its first colour jump (end_at_appearance_jumps), with drift > 0 where
     its chromaticity drifts from frame 0's (end_at_colour_drift); with drift_scale > 0 each track-frame is
-    weighted by drift_confidence."""
+    weighted by drift_confidence; with texture > 0, where the clip starts moving, the whole loss by
+    texture_confidence."""
     rgb_np = rgb.detach().cpu().numpy()
     mask_np = mask.detach().cpu().numpy()
     start, ok = visible_vertices(template, camera, mask_np[0], depth0.detach().cpu().numpy())
@@ -218,11 +293,17 @@ def compute_vertex_tracks(rgb: torch.Tensor, mask: torch.Tensor, template: torch
     valid = end_at_appearance_jumps(rgb_np, pts, valid, jump_ratio, jump_floor)
     valid = end_at_colour_drift(rgb_np, pts, valid, drift)
     weight = drift_confidence(rgb_np, pts, drift_scale)
-    return VertexTracks(points=torch.as_tensor(pts, dtype=template.dtype, device=template.device),
-                        valid=torch.as_tensor(valid, device=template.device),
-                        scale=float(max(camera.width, camera.height)),
-                        weight=None if weight is None else torch.as_tensor(weight, dtype=template.dtype,
-                                                                           device=template.device))
+    strength = texture_confidence(rgb_np[0], mask_np[0], start, ok, texture) if texture > 0 and \
+        starts_moving(mask_np) else 1.0
+    if strength < 1.0:
+        log.info("point tracks on weak texture: the track loss weighs %.3g (shape.track_texture)", strength)
+
+    def tensor(a: np.ndarray | None) -> torch.Tensor | None:
+        return None if a is None else torch.as_tensor(a, dtype=template.dtype, device=template.device)
+
+    return VertexTracks(points=tensor(pts), valid=torch.as_tensor(valid, device=template.device),
+                        scale=float(max(camera.width, camera.height)), weight=tensor(weight),
+                        strength=strength)
 
 
 def hidden_vertices(positions: torch.Tensor, depth: torch.Tensor, camera: Camera, tolerance: float) -> torch.Tensor:
@@ -241,7 +322,8 @@ def hidden_vertices(positions: torch.Tensor, depth: torch.Tensor, camera: Camera
 def track_loss(positions: torch.Tensor, tracks: VertexTracks, camera: Camera, huber_delta: float,
                first_frame: int = 0, hidden: torch.Tensor | None = None) -> torch.Tensor:
     """L_track of simulated frames first_frame..first_frame+F-1 (positions (F, V, 3)); zero when no track
-    is valid there; with tracks.weight, the weighted mean over the valid track-frames.
+    is valid there; with tracks.weight, the weighted mean over the valid track-frames; with
+    tracks.strength, times it.
 
     huber_delta in pixels: residuals beyond it count linearly (a track that went astray pulls less).
     hidden (F, V) bool: vertices the reconstruction itself hides (hidden_vertices); their tracks are
@@ -256,11 +338,14 @@ def track_loss(positions: torch.Tensor, tracks: VertexTracks, camera: Camera, hu
     r = (uv - tracks.points[frames].to(uv)).norm(dim=-1) / tracks.scale
     d = huber_delta / tracks.scale
     h = torch.where(r <= d, 0.5 * r * r, d * (r - 0.5 * d))
+    if tracks.strength != 1.0:
+        h = h * tracks.strength
     if tracks.weight is None:
         return h[valid].mean()
     w = tracks.weight[frames].to(h)[valid]
     return (h[valid] * w).sum() / w.sum().clamp_min(1e-12)
 
 
-__all__ = ["VertexTracks", "compute_vertex_tracks", "end_at_colour_drift", "track_loss", "hidden_vertices", "track_points", "project", "visible_vertices",
+__all__ = ["VertexTracks", "compute_vertex_tracks", "end_at_colour_drift", "texture_strength", "texture_confidence",
+           "noise_level", "starts_moving", "START_SHARE", "track_loss", "hidden_vertices", "track_points", "project", "visible_vertices",
            "dense_flow", "bilinear_sample", "to_gray_u8"]
