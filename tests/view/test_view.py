@@ -93,8 +93,11 @@ def test_view_in_headless_chromium(result_with_gt, tmp_path):
         pytest.skip("chromium not installed (Debian: apt-get install -y chromium; install.sh --dev does it)")
     pytest.importorskip("viser")
     env = {**os.environ, "PYTHONPATH": str(REPO / "src")}
+    # SIGINT back to its default in the child: a suite started as a background job (`cmd &` in a script)
+    # ignores SIGINT, the viewer would inherit that and never see the Ctrl-C sent below
     proc = subprocess.Popen([sys.executable, "-m", "saft", "view", str(result_with_gt), "--port", str(_free_port())],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     browser = None
     try:
         url = None
