@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import torch
 
-from saft.scene.mesh import vertex_normals
+from saft.scene.mesh import quad_triangles, vertex_normals
 
 ARCCOS_GUARD = 0.99  # theta = arccos(0.99 * e1_hat . e2_hat) keeps arccos differentiable (REFERENCE.md)
 BEND_THRESHOLD_RAD = math.pi / 4.0  # rest angle < 45 deg -> bending hinge, else shearing hinge
@@ -142,7 +142,7 @@ class ClothTopology:
         is_bend = rest_angle < BEND_THRESHOLD_RAD
 
         # lumped masses from the triangulation (a,b,c), (a,c,d)
-        tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]], axis=0)
+        tris = quad_triangles(quads)
         area = 0.5 * np.linalg.norm(
             np.cross(verts[tris[:, 1]] - verts[tris[:, 0]], verts[tris[:, 2]] - verts[tris[:, 0]]), axis=1
         )
@@ -220,7 +220,7 @@ def flat_hinge_cosines(verts: np.ndarray, quads: np.ndarray, hinges: np.ndarray)
     the tangent plane at v (normal to v's vertex normal). A curved template's bend hinges become straight (the
     normal curvature is what the projection removes), its shear hinges keep their in-surface angles; on a flat
     template nothing changes (up to rounding)."""
-    n = vertex_normals(verts, np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]], axis=0))[hinges[:, 1]]
+    n = vertex_normals(verts, quad_triangles(quads))[hinges[:, 1]]
     e1 = verts[hinges[:, 1]] - verts[hinges[:, 0]]
     e2 = verts[hinges[:, 2]] - verts[hinges[:, 1]]
     e1 = e1 - np.einsum("ij,ij->i", e1, n)[:, None] * n

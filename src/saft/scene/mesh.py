@@ -40,9 +40,8 @@ class QuadMesh:
 
     @property
     def triangles(self) -> np.ndarray:
-        """(2Q, 3) int64: each quad (a, b, c, d) split into (a, b, c) and (a, c, d)."""
-        q = self.quads
-        return np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]], axis=0)
+        """(2Q, 3) int64: each quad (a, b, c, d) split into (a, b, c) and (a, c, d) (quad_triangles)."""
+        return quad_triangles(self.quads)
 
     @property
     def edges(self) -> np.ndarray:
@@ -54,6 +53,12 @@ class QuadMesh:
 
     def with_vertices(self, vertices: np.ndarray) -> "QuadMesh":
         return QuadMesh(np.asarray(vertices, dtype=np.float64).reshape(-1, 3), self.quads, self.uvs)
+
+
+def quad_triangles(quads: np.ndarray) -> np.ndarray:
+    """(2Q, 3): each quad (a, b, c, d) of (Q, 4) split into (a, b, c) and (a, c, d), first triangles first."""
+    q = np.asarray(quads)
+    return np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]], axis=0)
 
 
 def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:

@@ -21,7 +21,7 @@ from saft.evaluate.appearance import APPEARANCE_GT_DIR, GT_MESH_FILE, write_appe
 from saft.evaluate.metrics import sample_surface
 from saft.scene.camera import Camera, look_at
 from saft.scene.frames import FrameSequence
-from saft.scene.mesh import QuadMesh, write_obj
+from saft.scene.mesh import QuadMesh, quad_triangles, write_obj
 from saft.scene.scene import Scene
 from saft.synthetic.benchmark_scenes import DONE_FILE, GRAVITY, BenchSceneSpec, write_scene_folder, path_trace, simulate
 from saft.synthetic.fabrics import environment_map, fabric_maps
@@ -107,7 +107,7 @@ def make_scene(n_frames: int = 20, image_size: int = 200, map_size: int = 128, n
     """Build (and by default render) the synthetic scene; the images are sRGB, the masks exact coverage."""
     verts0, quads, uvs = grid_sheet(n_quads)
     motion = wave_motion(verts0, n_frames)
-    tri = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]], axis=0)
+    tri = quad_triangles(quads)
     f = 1.25 * image_size
     K = np.array([[f, 0, (image_size - 1) / 2], [0, f, (image_size - 1) / 2], [0, 0, 1.0]])
     cam = look_at([0.35, 0.25, -1.7], [0.0, -0.05, 0.0], [0, 1, 0], K, image_size, image_size)
