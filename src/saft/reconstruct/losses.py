@@ -3,16 +3,19 @@
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 
 
 def image_loss(rendered: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """Mean squared RGB error over all pixels and channels, averaged over frames: (F, H, W, 3) each."""
-    return ((rendered - target) ** 2).mean()
+    """Mean squared RGB error over all pixels and channels, averaged over frames: (F, H, W, 3) each.
+    (F.mse_loss: one fused op each way, where the written-out square and mean cost a GPU three kernels
+    forward and four backward per render.)"""
+    return F.mse_loss(rendered, target)
 
 
 def silhouette_loss(mask: torch.Tensor, target_mask: torch.Tensor) -> torch.Tensor:
     """Mean squared error of the antialiased coverage against the target mask: (F, H, W) each."""
-    return ((mask - target_mask) ** 2).mean()
+    return F.mse_loss(mask, target_mask)
 
 
 def finite_difference_smoothness(texture: torch.Tensor) -> torch.Tensor:

@@ -58,36 +58,54 @@ def camera_to_clip(vertices: torch.Tensor, camera: Camera, *, crop: Crop | None 
 
     crop: render only that window of the camera's image (principal point shifted); scale: then resize the
     image by that factor (integer or arbitrary, e.g. 0.5 or 1/3, see Camera.scaled). The resolution to
-    rasterize at is that of `effective_camera(camera, crop, scale)`. near/far default to auto_near_far's,
-    computed on the device (no host sync). Differentiable with respect to `vertices`; keeps their dtype
-    and device.
+    rasterize at is that of `effective_camera(camera, crop, scale)`. Differentiable with respect to
+    `vertices`; keeps their dtype and device.
+
+    near: default half the nearest camera depth of the points (at least 1 mm), computed on the device (no
+    host sync), so nothing in front of the camera is clipped. far: default infinite, i.e. z_clip = w − 2·near
+    and z/w = 1 − 2·near/w < 1 however far a point is (with near at half the nearest depth the depth test
+    keeps about as many bits over the cloth as a far plane at twice its farthest depth did). With both
+    given, the finite projection of projection_matrix(camera, near, far).
+
+    One matrix product for x, y and w (world → clip composed once per camera) and one fused add for z: four
+    kernels forward and one backward with the default planes. The per-call near and far planes of the
+    earlier version cost about 30 launches forward and 10 backward, a third of a render step's launches on a
+    GPU next to nvdiffrast (BENCHMARKS.md, "A render step with fewer launches").
     """
     cam = effective_camera(camera, crop, scale)
-    R, t, P0 = _camera_tensors(cam, vertices)
-    p_cam = vertices @ R.T + t
-    clip = torch.cat([p_cam, torch.ones_like(p_cam[..., :1])], dim=-1) @ P0.T  # z column 0: added below
-    if near is None or far is None:  # 0-dim tensors on the device
-        n_auto, f_auto = _auto_near_far_tensors(p_cam[..., 2].detach())
-        near = n_auto if near is None else torch.full_like(n_auto, near)
-        far = f_auto if far is None else torch.full_like(f_auto, far)
-    # projection_matrix's z row: z_clip = (f + n)/(f − n) z − 2 f n/(f − n)
-    zc = p_cam[..., 2:3] * ((far + near) / (far - near)) - 2.0 * far * near / (far - near)
-    return clip + zc * const((0.0, 0.0, 1.0, 0.0), clip)
+    A, c = _camera_tensors(cam, vertices)  # rows x_clip, y_clip, w, w: the z row is made from w below
+    clip = torch.addmm(c, vertices.reshape(-1, 3), A.T).reshape(*vertices.shape[:-1], 4)
+    e_z = const((0.0, 0.0, 1.0, 0.0), clip)
+    if near is None:
+        w = clip[..., 3].detach()
+        near_t = 0.5 * (w.amin().clamp_min(2e-3) if w.numel() else w.new_tensor(2e-3))
+        if far is None:
+            return torch.addcmul(clip, e_z, near_t, value=-2.0)  # z = w − 2 near
+        a = (far + near_t) / (far - near_t)
+        b = 2.0 * far * near_t / (far - near_t)
+        return torch.addcmul(clip, e_z, (a - 1.0) * clip[..., 3:4] - b)
+    if far is None:
+        return torch.add(clip, e_z, alpha=-2.0 * near)
+    P = projection_matrix(cam, near, far)  # checks 0 < near < far
+    a, b = P[2, 2], -P[2, 3]
+    return torch.addcmul(clip, e_z, (a - 1.0) * clip[..., 3:4] - b)
 
 
 _CAMERAS: dict = {}
 
 
 def _camera_tensors(cam: Camera, like: torch.Tensor):
-    """world_to_camera's R (3, 3) and t (3,) and projection_matrix(cam, ·, ·) without its z row, as tensors
-    of like's dtype and device, made once per camera (a host-to-device copy per frame otherwise)."""
+    """(A (4, 3), c (4,)) with A x + c = (x_clip, y_clip, w, w) for a world point x: world_to_camera and
+    projection_matrix without its near/far-dependent z row (w in its place), composed in float64 and made
+    once per camera as tensors of like's dtype and device (a host-to-device copy per frame otherwise)."""
     key = (cam.K.tobytes(), cam.world_to_camera.tobytes(), cam.width, cam.height, like.dtype, like.device)
     hit = _CAMERAS.get(key)
     if hit is None:
-        P0 = projection_matrix(cam, 1.0, 2.0)
-        P0[2] = 0.0  # the z row depends on near and far: camera_to_clip adds it
+        P = projection_matrix(cam, 1.0, 2.0)
+        P[2] = P[3]  # the z row depends on near and far: camera_to_clip makes it from w
+        M = P @ np.asarray(cam.world_to_camera, dtype=np.float64)
         hit = tuple(torch.as_tensor(np.ascontiguousarray(a), dtype=like.dtype, device=like.device)
-                    for a in (cam.world_to_camera[:3, :3], cam.world_to_camera[:3, 3], P0))
+                    for a in (M[:, :3], M[:, 3]))
         if len(_CAMERAS) > 64:
             _CAMERAS.clear()
         _CAMERAS[key] = hit

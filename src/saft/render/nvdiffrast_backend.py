@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import functools
 import sys
+import weakref
 
 import torch
 
@@ -81,6 +82,7 @@ class NvdiffrastRasterizer:
             raise ValueError(f"the nvdiffrast backend needs a CUDA device, got {self.device}")
         self._dr = dr
         self.ctx = dr.RasterizeCudaContext(device=self.device)
+        self._mips: dict = {}  # texture -> (weakref to its owner, _version, mip stack): see _mip
 
     def _tri(self, tri: torch.Tensor) -> torch.Tensor:
         return topology(tri, self.device).tri32
@@ -109,9 +111,29 @@ class NvdiffrastRasterizer:
                 mask=None):
         if tex.dim() == 3:
             tex = tex[None]
-        return self._dr.texture(tex.float().contiguous(), uv.float().contiguous(),
-                                None if uv_da is None else uv_da.float().contiguous(),
-                                filter_mode=filter_mode, boundary_mode=boundary_mode, max_mip_level=max_mip_level)
+        tex = tex.float().contiguous()
+        mip = None
+        if uv_da is not None and "mipmap" in filter_mode and not tex.requires_grad:
+            mip = self._mip(tex, max_mip_level, boundary_mode == "cube")
+        return self._dr.texture(tex, uv.float().contiguous(), None if uv_da is None else uv_da.float().contiguous(),
+                                mip=mip, filter_mode=filter_mode, boundary_mode=boundary_mode,
+                                max_mip_level=max_mip_level)
+
+    def _mip(self, tex: torch.Tensor, max_mip_level, cube: bool):
+        """nvdiffrast's mip stack of a texture that needs no gradient, made once per texture: the shape phase
+        renders every frame with the same texture, and nvdiffrast otherwise rebuilds the stack (a kernel per
+        level) in every call. Found by the identity of the tensor that owns the texels (the same object,
+        unmodified since: the _version its views share)."""
+        owner = tex if tex._base is None else tex._base
+        key = (id(owner), tex.storage_offset(), tuple(tex.shape), tuple(tex.stride()), max_mip_level, cube)
+        hit = self._mips.get(key)
+        if hit is not None and hit[0]() is owner and hit[1] == tex._version:
+            return hit[2]
+        if len(self._mips) >= 4:  # a few textures at most: the oldest stack goes
+            self._mips.pop(next(iter(self._mips)))
+        mip = self._dr.texture_construct_mip(tex, max_mip_level, cube)
+        self._mips[key] = (weakref.ref(owner), tex._version, mip)
+        return mip
 
     def antialias(self, color, rast, pos, tri):
         if pos.dim() == 2:

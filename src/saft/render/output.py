@@ -19,17 +19,24 @@ class RenderOutput:
     backend, whose gradients flow through its own compact kernels).
     pos_clip (B, V, 4): the clip-space vertices used.
 
-    normals and rast may be given as zero-argument functions: they are then made on first access. The
-    shape phase reads neither; on the torch backend, leaving the two dense images out saved 0-24 % of a
-    700 x 800 render's forward + backward in interleaved measurements (BENCHMARKS.md)."""
+    depth, normals and rast may be given as zero-argument functions: they are then made on first access.
+    The shape phase reads no normals; on the torch backend, leaving the two dense images out saved 0-24 % of
+    a 700 x 800 render's forward + backward in interleaved measurements (BENCHMARKS.md); on nvdiffrast the
+    depth is its own interpolation, made only for the renders whose depth is read."""
 
-    __slots__ = ("rgb", "mask", "depth", "pos_clip", "_normals", "_rast")
+    __slots__ = ("rgb", "mask", "pos_clip", "_depth", "_normals", "_rast")
 
-    def __init__(self, rgb: torch.Tensor, mask: torch.Tensor, depth: torch.Tensor,
+    def __init__(self, rgb: torch.Tensor, mask: torch.Tensor, depth: torch.Tensor | Callable[[], torch.Tensor],
                  normals: torch.Tensor | Callable[[], torch.Tensor], rast: torch.Tensor | Callable[[], torch.Tensor],
                  pos_clip: torch.Tensor):
-        self.rgb, self.mask, self.depth, self.pos_clip = rgb, mask, depth, pos_clip
-        self._normals, self._rast = normals, rast
+        self.rgb, self.mask, self.pos_clip = rgb, mask, pos_clip
+        self._depth, self._normals, self._rast = depth, normals, rast
+
+    @property
+    def depth(self) -> torch.Tensor:
+        if callable(self._depth):
+            self._depth = self._depth()
+        return self._depth
 
     @property
     def normals(self) -> torch.Tensor:

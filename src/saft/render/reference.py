@@ -3,6 +3,8 @@ and the reference the torch backend's fused path (saft.render.torch.fused) is te
 
 from __future__ import annotations
 
+import weakref
+
 import torch
 
 from saft.render.output import RenderOutput, no_normals, vertex_normals
@@ -11,36 +13,58 @@ from saft.render.output import RenderOutput, no_normals, vertex_normals
 def render_cloth_primitives(R, vertices: torch.Tensor, pos: torch.Tensor, tri: torch.Tensor, uv: torch.Tensor,
                             tex: torch.Tensor, H: int, W: int, max_mip_level: int | None,
                             shading: torch.Tensor | None = None) -> RenderOutput:
-    """rasterize → interpolate (UV, camera depth[, shading]) → mip-mapped texture → antialias with R's
-    primitives. vertices (B, V, 3), pos (B, V, 4) clip space, tri (T, 3) int64, uv (V, 2) OBJ convention,
+    """rasterize → interpolate (UV[, shading]) → mip-mapped texture → antialias with R's primitives.
+    vertices (B, V, 3), pos (B, V, 4) clip space, tri (T, 3) int64, uv (V, 2) OBJ convention,
     tex (Ht, Wt, C) or (B|1, Ht, Wt, C); shading: None or (B, V, 3) per-vertex factors, interpolated and
     multiplied into the colour before antialias (normals are then not available).
 
-    The normals image is made on first access (a second interpolate, differentiable like the colours): the
-    shape and texture phases never read it, and computing it in every render cost about 40 of the ~120 ops
-    (= CUDA launches) that saft adds around nvdiffrast's kernels per forward + backward
-    (`bench_render_ops.py --path primitives`). The coverage channel is the rasterizer's triangle id > 0,
-    which an interpolated constant 1 equals up to rounding."""
+    Written for few launches per forward + backward on a GPU, where each op of saft's around nvdiffrast's
+    kernels costs a launch (`bench_render_ops.py --path primitives`): the UVs in the texture's convention
+    are made once per UV tensor and interpolated as one (1, V, 2) attribute broadcast over the batch (no
+    gradient to them: the interpolation's backward goes to the barycentrics only); the coverage is the
+    rasterizer's triangle id + 1 clamped at 1 (exactly 1 or 0); colour and coverage leave antialias as one
+    split (its backward is one concatenation, where slices cost two zero-fills, two copies and an add); the depth and normals images are made on
+    first access by their own interpolation (the shape and texture phases render many frames for every
+    depth image they read, and never read normals)."""
     if tex.dim() == 3:
         tex = tex[None]
-    B, V, _ = vertices.shape
     rast, rast_db = R.rasterize(pos, tri, (H, W), with_db=True)
-    uv_tex = torch.stack([uv[:, 0], 1.0 - uv[:, 1]], dim=-1)  # nvdiffrast texture: v → row from the top
-    attrs = [uv_tex[None].expand(B, V, 2), pos[..., 3:4]]
+    attr = texture_uv(uv)[None]
     if shading is not None:
-        attrs.append(shading)
-    pix, pix_da = R.interpolate(torch.cat(attrs, dim=-1), rast, tri, rast_db=rast_db, diff_attrs=[0, 1])
-    covered = rast[..., 3] > 0
-    tex_rgb = R.texture(tex, pix[..., 0:2].contiguous(), pix_da, filter_mode="linear-mipmap-linear",
-                        boundary_mode="clamp", max_mip_level=max_mip_level, mask=covered)
-    cov = covered[..., None].to(pos.dtype)
-    rgb = tex_rgb.to(cov.dtype) * (cov if shading is None else pix[..., 3:6] * cov)
-    aa = R.antialias(torch.cat([rgb, cov], dim=-1), rast, pos, tri)
+        attr = torch.cat([attr.expand(shading.shape[0], -1, -1), shading], dim=-1)
+    pix, pix_da = R.interpolate(attr, rast, tri, rast_db=rast_db, diff_attrs=[0, 1])
+    cov = rast.detach()[..., 3:4].clamp(max=1.0)
+    tex_rgb = R.texture(tex, pix if shading is None else pix[..., 0:2].contiguous(), pix_da,
+                        filter_mode="linear-mipmap-linear", boundary_mode="clamp", max_mip_level=max_mip_level)
+    rgb = tex_rgb.to(cov.dtype) * (cov if shading is None else pix[..., 2:5] * cov)
+    aa_rgb, aa_mask = R.antialias(torch.cat([rgb, cov], dim=-1), rast, pos, tri).split([3, 1], dim=-1)
+
+    def depth():
+        return R.interpolate(pos[..., 3:4], rast, tri)[..., 0]
+
     if shading is None:
         def normals():
             n = R.interpolate(vertex_normals(vertices, tri), rast, tri)
             return n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     else:
         normals = no_normals
-    return RenderOutput(rgb=aa[..., :3], mask=aa[..., 3], depth=pix[..., 2], normals=normals, rast=rast,
+    return RenderOutput(rgb=aa_rgb, mask=aa_mask.squeeze(-1), depth=depth, normals=normals, rast=rast,
                         pos_clip=pos)
+
+
+_UV: dict = {}  # id(uv) -> (weakref to uv, uv._version, the texture-convention copy)
+
+
+def texture_uv(uv: torch.Tensor) -> torch.Tensor:
+    """(V, 2) UVs in the texture lookup's convention (v → row from the top: (u, 1 − v)), made once per UV
+    tensor: one seen before and unmodified (same object, same _version) is found by identity, as
+    saft.render.topology finds triangle lists. UVs that need a gradient are converted on every call."""
+    if uv.requires_grad:
+        return torch.stack([uv[:, 0], 1.0 - uv[:, 1]], dim=-1)
+    k = id(uv)
+    hit = _UV.get(k)
+    if hit is not None and hit[0]() is uv and hit[1] == uv._version:
+        return hit[2]
+    out = torch.stack([uv[:, 0], 1.0 - uv[:, 1]], dim=-1)
+    _UV[k] = (weakref.ref(uv, lambda _r, k=k: _UV.pop(k, None)), uv._version, out)
+    return out
