@@ -1,6 +1,9 @@
 """Forward + backward of render_cloth on the R1 template (32×32 grid, 1922 triangles, 512² texture).
 
-Gradients flow to the vertex positions and to the texture. Resolutions: 700×800 (the R1 crop) and
+Gradients flow to the vertex positions and to the texture, from the loss of the texture and shape phases
+(saft.reconstruct.losses: image_loss + 0.2 silhouette_loss against a blank target; before 2026-11-27 the
+same loss written out, `(rgb - target).square().mean() + 0.2 * mask.square().mean()`, 7 ops forward and
+about 8 backward more per step: a quarter of a GPU step's launches, BENCHMARKS.md "GPU, fourth session"). Resolutions: 700×800 (the R1 crop) and
 350×400 (half), with 1 and 2 torch threads (--threads); per step both the wall-clock time and the process
 CPU time (time.process_time: the honest number on a shared, loaded machine, where wall time also counts
 waiting for a core). Prints a table of medians of --runs timed steps after warm-up; the last line is
@@ -22,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from saft.reconstruct.losses import image_loss, silhouette_loss
 from saft.render import get_rasterizer, render_cloth
 from saft.scene.camera import Camera, Crop
 from saft.scene.mesh import read_obj
@@ -53,12 +57,13 @@ def bench(cam, mesh, tex0, rasterizer, device, runs: int) -> tuple[float, float]
     tri = torch.from_numpy(mesh.triangles).to(device)
     uvs = torch.from_numpy(mesh.uvs).float().to(device)
     target = torch.zeros(1, cam.height, cam.width, 3, device=device)
+    target_mask = torch.zeros(1, cam.height, cam.width, device=device)
 
     def step():
         v.grad = None
         tex.grad = None
         out = render_cloth(v, tri, uvs, tex, cam, rasterizer=rasterizer)
-        loss = (out.rgb - target).square().mean() + 0.2 * out.mask.square().mean()
+        loss = image_loss(out.rgb, target) + 0.2 * silhouette_loss(out.mask, target_mask)
         loss.backward()
         if device.type == "cuda":
             torch.cuda.synchronize()

@@ -31,6 +31,7 @@ import torch
 from torch.utils._python_dispatch import TorchDispatchMode
 
 from bench_render import R1, load_texture, r1_camera
+from saft.reconstruct.losses import image_loss, silhouette_loss
 from saft.render import get_rasterizer, render_cloth
 from saft.render.reference import render_cloth_primitives
 from saft.scene.camera import Crop
@@ -174,11 +175,12 @@ def setup(size, device, tex_grad: bool = True, path: str = "fused"):
     tri = torch.from_numpy(mesh.triangles).to(device)
     uvs = torch.from_numpy(mesh.uvs).float().to(device)
     target = torch.zeros(1, cam.height, cam.width, 3, device=device)
+    target_mask = torch.zeros(1, cam.height, cam.width, device=device)
     R = get_rasterizer("torch", device) if path == "fused" else _OpaquePrimitives(device)
 
     def forward():
         out = render_cloth(v, tri, uvs, tex, cam, rasterizer=R)
-        return (out.rgb - target).square().mean() + 0.2 * out.mask.square().mean()
+        return image_loss(out.rgb, target) + 0.2 * silhouette_loss(out.mask, target_mask)
 
     def step():
         v.grad = None
