@@ -39,7 +39,7 @@ import numpy as np
 import torch
 
 from saft.appearance import fit_appearance
-from saft.appearance.config import AppearanceConfig, cpu_profile, paper_profile
+from saft.appearance.config import AppearanceConfig, cpu_profile, cuda_profile, paper_profile
 from saft.config_io import merge_overrides
 from saft.evaluate import GroundTruthSpec, evaluate_result_dir
 from saft.evaluate.appearance import (METRIC_NAMES, appearance_metrics, read_appearance_ground_truth, texture_baseline,
@@ -74,9 +74,10 @@ def own_motion(scene_dir: Path, out: Path, threads: int = 0) -> tuple[np.ndarray
     return positions, read_image(out / "texture.png")[..., :3], float(cd2)
 
 
-def row(label: str, maps, gt, scene, truth, spp: int, seconds=(0.0, 0.0)) -> dict:
-    """One row's metrics; truth = (vertices, triangles, uvs) of the true geometry (true_geometry)."""
-    m = appearance_metrics(*maps, gt, *truth, scene.camera, spp=spp)
+def row(label: str, maps, gt, scene, truth, spp: int, seconds=(0.0, 0.0), device="cpu") -> dict:
+    """One row's metrics; truth = (vertices, triangles, uvs) of the true geometry (true_geometry); the relit
+    views rendered by Mitsuba on `device`."""
+    m = appearance_metrics(*maps, gt, *truth, scene.camera, spp=spp, device=device)
     return {"method": label, **{k: m[k] for k in METRIC_NAMES}, "fit_wall_s": seconds[0], "fit_cpu_s": seconds[1]}
 
 
@@ -119,7 +120,10 @@ def main(argv=None) -> int:
     ap.add_argument("--spp", type=int, default=64, help="samples per pixel of the videos")
     ap.add_argument("--eval-spp", type=int, default=64, help="samples per pixel of the relit novel views")
     ap.add_argument("--root", default="/tmp/saft-appearance-bench")
-    ap.add_argument("--profile", choices=["cpu", "paper"], default="cpu")
+    ap.add_argument("--profile", choices=["cpu", "cuda", "paper"], default="cpu")
+    ap.add_argument("--device", choices=["cpu", "cuda"], default="cpu",
+                    help="where phase 3 and the relit views run (Mitsuba llvm_ad_rgb or cuda_ad_rgb); the scenes, "
+                         "phase 1 and saft's motion are made on the CPU (or taken from --root's cache)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="override an AppearanceConfig field (TOML value), e.g. --set epochs=200 (repeatable)")
     ap.add_argument("--own-motion", action="store_true", help="add the row of phase 3 on saft's own motion (its texture + shape run cached under --root)")
@@ -130,7 +134,7 @@ def main(argv=None) -> int:
     ap.add_argument("--save-maps", default=None, help="write estimated | true maps per fabric into this folder")
     args = ap.parse_args(argv)
 
-    base = cpu_profile() if args.profile == "cpu" else paper_profile()
+    base = {"cpu": cpu_profile, "cuda": cuda_profile, "paper": paper_profile}[args.profile]()
     cfg = AppearanceConfig.from_dict(merge_overrides(base.to_dict(), args.set), "--set")
     cfg.validate()
     root = Path(args.root)
@@ -152,22 +156,24 @@ def main(argv=None) -> int:
         print(f"[{fabric}] scene + phase 1: {time.perf_counter() - t0:.0f} s", flush=True)
         if not args.no_baseline:
             rows.append({"fabric": fabric, **row("texture only", texture_baseline(texture), gt, scene, truth,
-                                                 args.eval_spp)})
+                                                 args.eval_spp, device=args.device)})
         rgb, mask = scene.frames.load()
         if not args.no_true_motion:
             res = fit_appearance(verts, scene.template.triangles, scene.template.uvs, scene.camera, rgb, mask, cfg,
-                                 init_texture=texture)
+                                 init_texture=texture, device=args.device)
             rows.append({"fabric": fabric, **row("phase 3, true motion", (res.diffuse, res.roughness, res.metallic),
-                                                 gt, scene, truth, args.eval_spp, (res.seconds, res.cpu_seconds)),
+                                                 gt, scene, truth, args.eval_spp, (res.seconds, res.cpu_seconds),
+                                                 args.device),
                          "materials": res.materials})
             if args.save_maps:
                 save_comparison(Path(args.save_maps) / f"{name}.png", res, gt, texture)
         if args.own_motion:
             positions, own_texture, cd2 = own_motion(scene_dir, root / "results" / f"{name}-shape", args.threads)
             own = fit_appearance(positions, scene.template.triangles, scene.template.uvs, scene.camera, rgb, mask,
-                                 cfg, init_texture=own_texture)
+                                 cfg, init_texture=own_texture, device=args.device)
             rows.append({"fabric": fabric, **row("phase 3, saft motion", (own.diffuse, own.roughness, own.metallic),
-                                                 gt, scene, truth, args.eval_spp, (own.seconds, own.cpu_seconds)),
+                                                 gt, scene, truth, args.eval_spp, (own.seconds, own.cpu_seconds),
+                                                 args.device),
                          "shape_cd2": cd2, "materials": own.materials})
         for r in rows[-3:]:
             if r["fabric"] == fabric:
@@ -176,7 +182,7 @@ def main(argv=None) -> int:
     print(f"\nappearance benchmark: {args.frames} frames of {args.width}x{args.height} (start {args.start}, "
           f"motion {args.motion}), "
           f"video {args.spp} spp, "
-          f"relit views {args.eval_spp} spp, profile {cfg.profile}, overrides {args.set or 'none'}")
+          f"relit views {args.eval_spp} spp, profile {cfg.profile} on {args.device}, overrides {args.set or 'none'}")
     print("| fabric | method | diffuse PSNR (dB) | roughness MAE | metallic MAE | relit PSNR video light (dB) | "
           "relit PSNR unseen light (dB) | fit wall (s) | fit CPU (s) |")
     print("|---|---|---|---|---|---|---|---|---|")

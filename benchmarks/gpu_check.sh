@@ -12,6 +12,11 @@
 #   r1bf16      (not in the default steps) R1 with SAFT_DENSE_SOLVER=densebf16 (now auto's choice as well)
 #   profile     (not in the default steps) R1's first 10 frames, 10 final epochs, under torch.profiler: host and
 #               device time per part of the shape phase (bench_r1.py --profile)
+#   apptest     (not in the default steps; needs Mitsuba: benchmarks/gpu_stage_appearance.sh, a call of its own)
+#               phase 3's small fit on cuda_ad_rgb (tests/appearance/test_appearance_cuda.py)
+#   appearance  (the same) bench_appearance.py's print scene, phase 3 on CUDA with the CUDA profile cut to
+#               SAFT_GPU_APP_EPOCHS epochs (default 200 of its 2000) and the CPU profile: fit wall seconds and
+#               the ground-truth metrics
 # Then a table, and one line per number (name=value). Each step has its own time limit, so a hung step
 # costs its limit, not the check. Choose steps with SAFT_GPU_CHECK_STEPS="physics r1" and the tests with
 # SAFT_GPU_CHECK_TESTS="tests/physics" (default: all of both), the solvers of the physics step with
@@ -75,6 +80,11 @@ want r1c && TORCHINDUCTOR_CACHE_DIR=$r1cache step r1c 300 $py benchmarks/bench_r
                   --out /tmp/saft-gpu-r1c
 want r1bf16 && SAFT_DENSE_SOLVER=densebf16 TORCHINDUCTOR_CACHE_DIR=$r1cache step r1bf16 300 $py benchmarks/bench_r1.py \
                   --device auto --out /tmp/saft-gpu-r1bf16
+app="$py benchmarks/bench_appearance.py --root ${SAFT_GPU_APP_ROOT:-.gpu2/appbench} --frames 32 --width 320 \
+     --height 240 --fabrics print --device cuda --no-baseline --threads 1"
+want apptest && step apptest 200 $py -m pytest -q -m cuda -p no:cacheprovider -s tests/appearance/test_appearance_cuda.py
+want appearance && step appearance 420 bash -c "$app --profile cuda --set epochs=${SAFT_GPU_APP_EPOCHS:-200} && \
+                                              $app --profile cpu"
 want profile && step profile 240 $py benchmarks/bench_r1.py --device auto --frames 10 --set shape.final_epochs=10 \
                           --profile --out /tmp/saft-gpu-profile
 
@@ -82,7 +92,7 @@ echo
 echo "=== summary"
 printf '%s\n' "${rows[@]}"
 grep -h -E '^[a-z0-9_]+(_[0-9a-z.x-]+)*=[-0-9.e+]+' "$out"/*.log | sort -u | tee "$out/numbers.txt"
-wall=$(grep -h '^r1_wall_s=' "$out/r1.log" | cut -d= -f2)
-cd2=$(grep -h '^r1_cd2_1e-4m2=' "$out/r1.log" | cut -d= -f2)
+wall=$(grep -hs '^r1_wall_s=' "$out/r1.log" | cut -d= -f2)
+cd2=$(grep -hs '^r1_cd2_1e-4m2=' "$out/r1.log" | cut -d= -f2)
 echo "r1_gpu_s=${wall:-none}"
 echo "r1_gpu_cd2=${cd2:-none}"
