@@ -3,8 +3,8 @@
 Gradients flow to the vertex positions and to the texture, from the loss of the texture and shape phases
 (saft.reconstruct.losses: image_loss + 0.2 silhouette_loss against a blank target; before 2026-11-27 the
 same loss written out, `(rgb - target).square().mean() + 0.2 * mask.square().mean()`, 7 ops forward and
-about 8 backward more per step: a quarter of a GPU step's launches, BENCHMARKS.md "GPU, fourth session"). Resolutions: 700×800 (the R1 crop) and
-350×400 (half), with 1 and 2 torch threads (--threads); per step both the wall-clock time and the process
+about 8 backward more per step: a quarter of a GPU step's launches, BENCHMARKS.md "GPU, fourth session").
+Resolutions: 700×800 (the R1 crop) and 350×400 (half), with 1 and 2 torch threads (--threads); per step both the wall-clock time and the process
 CPU time (time.process_time: the honest number on a shared, loaded machine, where wall time also counts
 waiting for a core). Prints a table of medians of --runs timed steps after warm-up; the last line is
 machine-readable: render_fwd_bwd_ms_350x400=<ms>, the median WALL time at 350×400 for the thread count

@@ -82,7 +82,8 @@ want r1bf16 && SAFT_DENSE_SOLVER=densebf16 TORCHINDUCTOR_CACHE_DIR=$r1cache step
                   --device auto --out /tmp/saft-gpu-r1bf16
 app="$py benchmarks/bench_appearance.py --root ${SAFT_GPU_APP_ROOT:-.gpu2/appbench} --frames 32 --width 320 \
      --height 240 --fabrics print --device cuda --no-baseline --threads 1"
-want apptest && step apptest 200 $py -m pytest -q -m cuda -p no:cacheprovider -s tests/appearance/test_appearance_cuda.py
+want apptest && step apptest 200 $py -m pytest -q -m cuda -p no:cacheprovider -s \
+                                  tests/appearance/test_appearance_cuda.py
 want appearance && step appearance 420 bash -c "$app --profile cuda --set epochs=${SAFT_GPU_APP_EPOCHS:-200} && \
                                               $app --profile cpu"
 want profile && step profile 240 $py benchmarks/bench_r1.py --device auto --frames 10 --set shape.final_epochs=10 \

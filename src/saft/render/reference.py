@@ -23,9 +23,10 @@ def render_cloth_primitives(R, vertices: torch.Tensor, pos: torch.Tensor, tri: t
     are made once per UV tensor and interpolated as one (1, V, 2) attribute broadcast over the batch (no
     gradient to them: the interpolation's backward goes to the barycentrics only); the coverage is the
     rasterizer's triangle id + 1 clamped at 1 (exactly 1 or 0); colour and coverage leave antialias as one
-    split (its backward is one concatenation, where slices cost two zero-fills, two copies and an add); the depth and normals images are made on
-    first access by their own interpolation (the shape and texture phases render many frames for every
-    depth image they read, and never read normals)."""
+    split (its backward is one concatenation, where slices cost two zero-fills, two copies and an add). The
+    depth and normals images are made on first access, each by its own interpolation: the texture phase
+    reads neither, the shape phase reads the depth (detached, for the tracks' occlusion test) and never the
+    normals."""
     if tex.dim() == 3:
         tex = tex[None]
     rast, rast_db = R.rasterize(pos, tri, (H, W), with_db=True)
