@@ -70,7 +70,7 @@ def camera_to_clip(vertices: torch.Tensor, camera: Camera, *, crop: Crop | None 
     One matrix product for x, y and w (world → clip composed once per camera) and one fused add for z: four
     kernels forward and one backward with the default planes. The per-call near and far planes of the
     earlier version cost about 30 launches forward and 10 backward, a third of a render step's launches on a
-    GPU next to nvdiffrast (BENCHMARKS.md, "A render step with fewer launches").
+    GPU next to nvdiffrast (BENCHMARKS.md, "GPU, fourth session").
     """
     cam = effective_camera(camera, crop, scale)
     A, c = _camera_tensors(cam, vertices)  # rows x_clip, y_clip, w, w: the z row is made from w below
