@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import torch
 
-from saft.appearance.fit import AppearanceResult, fit_appearance, render_appearance
+from saft.appearance.fit import AppearanceResult, fit_appearance
 from saft.synthetic.appearance import make_scene
 
-from test_appearance_fit import _config
+from test_appearance_fit import _config, _rerender_error
 
 pytestmark = [
     pytest.mark.cuda,
@@ -27,13 +27,8 @@ def test_fit_on_the_gpu_lowers_rerender_error():
     res = fit_appearance(sc.vertices, sc.triangles, sc.uvs, sc.camera, sc.rgb, sc.mask, cfg, device="cuda")
     assert len(res.losses) == 30 and np.isfinite(res.losses).all()
 
-    def error(r):
-        imgs = render_appearance(r, sc.vertices, sc.triangles, sc.uvs, sc.camera, spp=32, device="cuda")
-        m = sc.mask[..., None]
-        return float(((imgs - sc.rgb) ** 2 * m).sum() / m.sum() / 3)
-
     init = AppearanceResult(np.full_like(res.diffuse, 0.5), np.full_like(res.roughness, 0.5),
                             np.full_like(res.metallic, 0.5), np.full_like(res.envmap, 0.5), [], cfg)
-    before, after = error(init), error(res)
+    before, after = _rerender_error(init, sc, "cuda"), _rerender_error(res, sc, "cuda")
     print(f"re-render error on CUDA {before:.5f} -> {after:.5f} (ratio {before / after:.2f})")
     assert after < before / 2.5, (before, after)

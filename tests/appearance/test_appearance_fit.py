@@ -26,8 +26,8 @@ def _config(epochs):
     return cfg
 
 
-def _rerender_error(res, sc):
-    imgs = render_appearance(res, sc.vertices, sc.triangles, sc.uvs, sc.camera, spp=32)
+def _rerender_error(res, sc, device="cpu"):
+    imgs = render_appearance(res, sc.vertices, sc.triangles, sc.uvs, sc.camera, spp=32, device=device)
     m = sc.mask[..., None]
     return float(((imgs - sc.rgb) ** 2 * m).sum() / m.sum() / 3)
 
