@@ -11,13 +11,12 @@ from __future__ import annotations
 
 import functools
 import sys
-import weakref
 
 import torch
 
 from saft.render.output import RenderOutput
 from saft.render.reference import render_cloth_primitives
-from saft.render.topology import topology
+from saft.render.topology import TensorCache, topology
 
 
 def load_nvdiffrast():
@@ -82,7 +81,7 @@ class NvdiffrastRasterizer:
             raise ValueError(f"the nvdiffrast backend needs a CUDA device, got {self.device}")
         self._dr = dr
         self.ctx = dr.RasterizeCudaContext(device=self.device)
-        self._mips: dict = {}  # texture -> (weakref to its owner, _version, mip stack): see _mip
+        self._mips = TensorCache(limit=4)  # a few textures' mip stacks at most: see _mip
 
     def _tri(self, tri: torch.Tensor) -> torch.Tensor:
         return topology(tri, self.device).tri32
@@ -122,17 +121,13 @@ class NvdiffrastRasterizer:
     def _mip(self, tex: torch.Tensor, max_mip_level, cube: bool):
         """nvdiffrast's mip stack of a texture that needs no gradient, made once per texture: the shape phase
         renders every frame with the same texture, and nvdiffrast otherwise rebuilds the stack (a kernel per
-        level) in every call. Found by the identity of the tensor that owns the texels (the same object,
-        unmodified since: the _version its views share)."""
+        level) in every call. Found by the identity of the tensor that owns the texels (TensorCache; its
+        views share its _version)."""
         owner = tex if tex._base is None else tex._base
-        key = (id(owner), tex.storage_offset(), tuple(tex.shape), tuple(tex.stride()), max_mip_level, cube)
-        hit = self._mips.get(key)
-        if hit is not None and hit[0]() is owner and hit[1] == tex._version:
-            return hit[2]
-        if len(self._mips) >= 4:  # a few textures at most: the oldest stack goes
-            self._mips.pop(next(iter(self._mips)))
-        mip = self._dr.texture_construct_mip(tex, max_mip_level, cube)
-        self._mips[key] = (weakref.ref(owner), tex._version, mip)
+        key = (tex.storage_offset(), tuple(tex.shape), tuple(tex.stride()), max_mip_level, cube)
+        mip = self._mips.get(owner, *key)
+        if mip is None:
+            mip = self._mips.put(owner, self._dr.texture_construct_mip(tex, max_mip_level, cube), *key)
         return mip
 
     def antialias(self, color, rast, pos, tri):

@@ -3,11 +3,10 @@ and the reference the torch backend's fused path (saft.render.torch.fused) is te
 
 from __future__ import annotations
 
-import weakref
-
 import torch
 
 from saft.render.output import RenderOutput, no_normals, vertex_normals
+from saft.render.topology import TensorCache
 
 
 def render_cloth_primitives(R, vertices: torch.Tensor, pos: torch.Tensor, tri: torch.Tensor, uv: torch.Tensor,
@@ -53,19 +52,14 @@ def render_cloth_primitives(R, vertices: torch.Tensor, pos: torch.Tensor, tri: t
                         pos_clip=pos)
 
 
-_UV: dict = {}  # id(uv) -> (weakref to uv, uv._version, the texture-convention copy)
+_UV = TensorCache()  # uv tensor → its texture-convention copy
 
 
 def texture_uv(uv: torch.Tensor) -> torch.Tensor:
     """(V, 2) UVs in the texture lookup's convention (v → row from the top: (u, 1 − v)), made once per UV
-    tensor: one seen before and unmodified (same object, same _version) is found by identity, as
-    saft.render.topology finds triangle lists. UVs that need a gradient are converted on every call."""
+    tensor (found by identity: saft.render.topology.TensorCache). UVs that need a gradient are converted on
+    every call."""
     if uv.requires_grad:
         return torch.stack([uv[:, 0], 1.0 - uv[:, 1]], dim=-1)
-    k = id(uv)
-    hit = _UV.get(k)
-    if hit is not None and hit[0]() is uv and hit[1] == uv._version:
-        return hit[2]
-    out = torch.stack([uv[:, 0], 1.0 - uv[:, 1]], dim=-1)
-    _UV[k] = (weakref.ref(uv, lambda _r, k=k: _UV.pop(k, None)), uv._version, out)
-    return out
+    out = _UV.get(uv)
+    return out if out is not None else _UV.put(uv, torch.stack([uv[:, 0], 1.0 - uv[:, 1]], dim=-1))

@@ -12,8 +12,35 @@ import numpy as np
 import torch
 
 _CACHE: "OrderedDict[tuple, Topology]" = OrderedDict()  # by content: the fallback, one hash per call
-_BY_ID: dict = {}  # by tensor identity: (id, device) → (weakref, _version, weakref to the Topology)
 _CACHE_SIZE = 16
+
+
+class TensorCache:
+    """Values derived from tensors, found by the tensor's identity: a tensor seen before and unmodified since
+    (the same object, the same _version) gets the value put for it, with no copy, hash or host sync. An entry
+    goes when its tensor is freed; with `limit`, the oldest also goes when a new one would exceed it. `key`:
+    what else the value depends on (a device, a mip level...)."""
+
+    def __init__(self, limit: int | None = None):
+        self._entries: dict = {}
+        self.limit = limit
+
+    def get(self, t: torch.Tensor, *key):
+        hit = self._entries.get((id(t), *key))
+        if hit is not None and hit[0]() is t and hit[1] == t._version:
+            return hit[2]
+        return None
+
+    def put(self, t: torch.Tensor, value, *key):
+        k = (id(t), *key)
+        if self.limit is not None and k not in self._entries and len(self._entries) >= self.limit:
+            self._entries.pop(next(iter(self._entries)))
+        entries = self._entries
+        entries[k] = (weakref.ref(t, lambda _r: entries.pop(k, None)), t._version, value)
+        return value
+
+
+_BY_ID = TensorCache()  # by tensor identity: (tensor, device) → weakref to the Topology
 
 
 def edge_neighbors_np(tri: np.ndarray) -> np.ndarray:
@@ -77,8 +104,8 @@ def topology(triangles, device: torch.device | str | None = None) -> Topology:
     is_t = isinstance(triangles, torch.Tensor)
     dev = torch.device(device) if device is not None else (triangles.device if is_t else torch.device("cpu"))
     if is_t:
-        hit = _BY_ID.get((id(triangles), dev))
-        topo = hit[2]() if hit is not None and hit[0]() is triangles and hit[1] == triangles._version else None
+        hit = _BY_ID.get(triangles, dev)
+        topo = hit() if hit is not None else None
         if topo is not None:
             return topo
     arr = (triangles.detach().to("cpu") if is_t else torch.as_tensor(np.asarray(triangles))).to(torch.int64)
@@ -93,14 +120,9 @@ def topology(triangles, device: torch.device | str | None = None) -> Topology:
     else:
         _CACHE.move_to_end(key)
     for t in ((triangles, topo.tri) if is_t else (topo.tri,)):
-        _remember(t, dev, topo)
+        # weak both ways: the table keeps neither a caller's tensor nor a Topology the content cache dropped
+        _BY_ID.put(t, weakref.ref(topo), dev)
     return topo
-
-
-def _remember(t: torch.Tensor, dev, topo: Topology) -> None:
-    k = (id(t), dev)
-    # weak both ways: the table keeps neither a caller's tensor nor a Topology the content cache dropped
-    _BY_ID[k] = (weakref.ref(t, lambda _r, k=k: _BY_ID.pop(k, None)), t._version, weakref.ref(topo))
 
 
 def edge_neighbors(tri: torch.Tensor) -> torch.Tensor:
