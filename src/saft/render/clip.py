@@ -83,12 +83,12 @@ def camera_to_clip(vertices: torch.Tensor, camera: Camera, *, crop: Crop | None 
             return torch.addcmul(clip, e_z, near_t, value=-2.0)  # z = w − 2 near
         a = (far + near_t) / (far - near_t)
         b = 2.0 * far * near_t / (far - near_t)
-        return torch.addcmul(clip, e_z, (a - 1.0) * clip[..., 3:4] - b)
-    if far is None:
+    elif far is None:
         return torch.add(clip, e_z, alpha=-2.0 * near)
-    P = projection_matrix(cam, near, far)  # checks 0 < near < far
-    a, b = P[2, 2], -P[2, 3]
-    return torch.addcmul(clip, e_z, (a - 1.0) * clip[..., 3:4] - b)
+    else:
+        P = projection_matrix(cam, near, far)  # checks 0 < near < far
+        a, b = P[2, 2], -P[2, 3]
+    return torch.addcmul(clip, e_z, (a - 1.0) * clip[..., 3:4] - b)  # z = a w − b
 
 
 _CAMERAS: dict = {}
