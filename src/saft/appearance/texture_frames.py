@@ -29,8 +29,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 import torch.nn.functional as Fnn
+from scipy.ndimage import gaussian_filter
 
-from saft.appearance.detail import untrusted_detail_frames
+from saft.appearance.detail import FLOOR, detail_repeat_per_frame, untrusted_detail_frames
 from saft.appearance.guided import GuidedMaps
 from saft.appearance.params import linear_to_srgb, srgb_to_linear
 from saft.render import render_cloth
@@ -69,14 +70,16 @@ def image_plane_axes(vertices: torch.Tensor, camera: Camera) -> torch.Tensor:
 def fit_texture_frames(vertices, triangles, uvs, camera: Camera, rgb, mask, frames, init_texture, *,
                        epochs: int = 100, lr: float = 0.02, lr_gain: float = 0.05, gain_grid: int = 4,
                        shift_grid: int = 0, lr_shift: float = 0.05, register_epochs: int = 0,
-                       lambda_smooth: float = 1e-4, device="cpu") -> tuple[np.ndarray, np.ndarray, np.ndarray, list[float]]:
+                       keep_shading: float = 0.0, lambda_smooth: float = 1e-4, device="cpu") -> tuple[np.ndarray, np.ndarray, np.ndarray, list[float]]:
     """T refitted on `frames` (module docstring). vertices (F, V, 3) of every frame; rgb (F, H, W, 3) sRGB,
     mask (F, H, W) at the camera's size; frames: indices, the first the reference (gain 1, no shift);
     init_texture (S, S, 3) sRGB, the phase-1 texture. shift_grid > 0: each other frame's mesh is also
     moved in the image plane by a shift_grid × shift_grid bilinear grid of pixel offsets over the UV square,
     fitted jointly (registration: a motion off by a fraction of a thread would blur T). The first
     register_epochs epochs (of `epochs`) fit the gains and shifts only, T held at the phase-1 texture (frame
-    0's, so the other frames are registered to frame 0 before they teach T anything). Returns the texture
+    0's, so the other frames are registered to frame 0 before they teach T anything). keep_shading > 0:
+    the fitted T's shading is put back to the start's at the end (keep_reference_shading with this σ in
+    texels). Returns the texture
     (S, S, 3) sRGB float32, the log-gain grids (N, 3, g, g) and the pixel shifts (N, 2, s, s) (the
     reference's zero) and the image loss per epoch."""
     frames = [int(f) for f in frames]
@@ -111,8 +114,25 @@ def fit_texture_frames(vertices, triangles, uvs, camera: Camera, rgb, mask, fram
         with torch.no_grad():
             tex.clamp_(0.0, 1.0)
         losses.append(float(image.detach()))
-    return (tex.detach().cpu().numpy(), with_ref(log_gain).detach().cpu().numpy(),
+    out = tex.detach().cpu().numpy()
+    if keep_shading > 0:
+        out = keep_reference_shading(out, init_texture, keep_shading)
+    return (out, with_ref(log_gain).detach().cpu().numpy(),
             with_ref(shift).detach().cpu().numpy(), losses)
+
+
+def keep_reference_shading(texture_srgb, reference_srgb, sigma: float) -> np.ndarray:
+    """The texture's low frequencies put back to the reference's: in linear radiance, T · blur(R) / blur(T),
+    blur a Gaussian of σ texels per channel (scipy). The gains of the other frames are smooth and start at 1,
+    so in a short joint fit part of their shading lands in T instead (the low frequencies of T are pinned by
+    frame 0 alone, one term of N); this keeps T in frame 0's shading (what phase 3's irradiance division and
+    frame_specular assume) and leaves the detail finer than σ, where the frames' averaging and sub-pixel
+    shifts act, as fitted."""
+    lin = srgb_to_linear(np.asarray(texture_srgb, dtype=np.float32)[..., :3]).astype(np.float64)
+    ref = srgb_to_linear(np.asarray(reference_srgb, dtype=np.float32)[..., :3]).astype(np.float64)
+    blur = lambda a: gaussian_filter(a, sigma=(sigma, sigma, 0), mode="nearest")
+    out = np.clip(lin * blur(ref) / np.maximum(blur(lin), 1e-4), 0.0, 1.0)
+    return linear_to_srgb(torch.as_tensor(out, dtype=torch.float32)).numpy()
 
 
 def choose_texture_frames(choice: str, count: int, texture_srgb, vertices, triangles, uvs, camera: Camera, rgb,
@@ -143,15 +163,30 @@ def choose_texture_frames(choice: str, count: int, texture_srgb, vertices, trian
 # texture-only diffuse PSNR; BENCHMARKS.md "The phase-1 texture refitted on several frames"): without
 # registration saft's meshes blur the weave (19.6 dB against phase 1's 20.8), a 4×4 shift grid gives 20.5,
 # 8×8 22.6, 12×12 23.3 (the true meshes: 24.5 unregistered, 24.3 registered at 8×8).
-EPOCHS, LR, LR_GAIN, GAIN_GRID, SHIFT_GRID, LR_SHIFT = 150, 0.02, 0.05, 4, 12, 0.1
+EPOCHS, LR, LR_GAIN, GAIN_GRID, SHIFT_GRID, LR_SHIFT, KEEP_SHADING = 150, 0.02, 0.05, 12, 12, 0.1, 8.0
 
 
-def refit_texture(vertices, triangles, uvs, camera: Camera, rgb, mask, texture_srgb, count: int,
-                  device="cpu") -> np.ndarray:
-    """appearance.texture_frames: the phase-1 texture (S, S, 3) sRGB refitted on frames 0 … count−1 with
-    the settings above; returns the new texture (S, S, 3) sRGB."""
-    frames = list(range(min(int(count), len(vertices))))
+def refit_texture(vertices, triangles, uvs, camera: Camera, rgb, mask, texture_srgb, count: int, trust: float = 0.5,
+                  smoothing: float = 4.0, clusters: int = 6, seed: int = 0,
+                  device="cpu") -> tuple[np.ndarray, list[int]]:
+    """appearance.texture_frames: the phase-1 texture (S, S, 3) sRGB refitted on the first `count` frames
+    that appearance.detail trusts (their detail repeat R_f at least `trust` × frames 1-2's; T clustered
+    and blurred as GuidedMaps does with `smoothing`, `clusters`, `seed`), with the settings above. A
+    texture whose detail frames 1-2 do not repeat (R below detail.FLOOR: a plain fabric, whose detail is
+    frame 0's noise, which phase 3's blur inside the clusters already removes) is returned as it is: there
+    the refit only moved the shading (cotton, satin: BENCHMARKS.md). Returns the texture (S, S, 3) sRGB and
+    the frames it was fitted on ([] when kept)."""
+    if len(vertices) < 3:
+        return np.asarray(texture_srgb, dtype=np.float32)[..., :3], []
+    model = GuidedMaps(srgb_to_linear(np.asarray(texture_srgb, dtype=np.float32)[..., :3]),
+                       size=np.shape(texture_srgb)[0], clusters=clusters, seed=seed, smoothing=smoothing)
+    args = (model, vertices, triangles, uvs, camera, rgb, mask, smoothing)
+    if float(np.mean(detail_repeat_per_frame(*args, frames=[1, 2])[1:3])) < FLOOR:
+        return np.asarray(texture_srgb, dtype=np.float32)[..., :3], []
+    untrusted = set(untrusted_detail_frames(*args, trust))
+    frames = [f for f in range(len(vertices)) if f not in untrusted][:int(count)]
     tex, _, _, _ = fit_texture_frames(vertices, triangles, uvs, camera, rgb, mask, frames, texture_srgb,
                                       epochs=EPOCHS, lr=LR, lr_gain=LR_GAIN, gain_grid=GAIN_GRID,
-                                      shift_grid=SHIFT_GRID, lr_shift=LR_SHIFT, device=device)
-    return tex
+                                      shift_grid=SHIFT_GRID, lr_shift=LR_SHIFT, keep_shading=KEEP_SHADING,
+                                      device=device)
+    return tex, frames
