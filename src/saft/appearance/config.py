@@ -43,6 +43,12 @@ class AppearanceConfig:
     # leave no frame out (the same fit). 0.75: plaid 20.76, 30.18 / 31.50, set on plaid alone, not taken
     # (BENCHMARKS.md, issue 28, "Which frames may teach the detail share")
     detail_trust: float = 0.0
+    # >= 2: before the fit, the phase-1 texture (fitted on frame 0 alone) is refitted on frames 0 … N−1
+    # through their meshes with the shape phase's rasteriser, each frame with its own smooth gain (frame 0's
+    # fixed at 1, so the texture keeps frame 0's shading) and its mesh registered by a grid of image-plane
+    # shifts (appearance.texture_frames: frame noise averaged, sub-pixel shifts resolving detail finer than
+    # one frame's pixels); 0 = off (phase 1's texture as it is)
+    texture_frames: int = 0
     # > 0: a per-frame correction of the shading normals is learnt with the maps (appearance.normals): a
     # tangent offset on a normal_grid × normal_grid bilinear lattice over the UV square, at normal_keys
     # keyframes in time (0 = one per frame) linearly interpolated, zero at frame 0; rate lr_normals, and
@@ -144,6 +150,8 @@ class AppearanceConfig:
             bad("spp", "must be >= 1")
         if not (0 < self.image_scale <= 1):
             bad("image_scale", "must lie in (0, 1]")
+        if self.texture_frames < 0 or self.texture_frames == 1:
+            bad("texture_frames", "must be 0 (off) or >= 2 frames")
         if not (0 <= self.detail_trust <= 1):
             bad("detail_trust", "must lie in [0, 1]")
         if self.frames_per_epoch < 0:
