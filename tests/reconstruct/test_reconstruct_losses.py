@@ -5,7 +5,8 @@ import pytest
 import torch
 
 from saft.reconstruct.config import ShapeConfig, shape_schedule
-from saft.reconstruct.losses import finite_difference_smoothness, force_regularizer
+from saft.reconstruct.losses import force_regularizer
+from saft.render.texture_prior import finite_difference_smoothness
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
 
 

@@ -179,7 +179,8 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
     refit_s = (time.perf_counter(), time.process_time())     # the texture's refit counts as part of the fit
     if cfg.texture_frames > 1 and init_texture is not None:   # the phase-1 texture refitted on several frames
         init_texture, _ = refit_texture(verts, triangles, uvs, camera, rgb, mask, init_texture, cfg.texture_frames,
-                                        max(cfg.detail_trust, 0.5), cfg.texture_smoothing, cfg.clusters, cfg.seed)
+                                        max(cfg.detail_trust, 0.5), cfg.texture_smoothing, cfg.clusters, cfg.seed,
+                                        device=dev)
     refit_s = (time.perf_counter() - refit_s[0], time.process_time() - refit_s[1])
     torch.manual_seed(cfg.seed)
     model = _build_model(cfg, init_texture, (verts[0], triangles, uvs, camera)).to(dev)

@@ -44,17 +44,10 @@ from saft.appearance.detail import FLOOR, detail_repeat_per_frame, untrusted_det
 from saft.appearance.guided import GuidedMaps
 from saft.appearance.params import linear_to_srgb, srgb_to_linear
 from saft.render import render_cloth
+from saft.render.texture_prior import finite_difference_smoothness
 from saft.scene.camera import Camera
 
 INTERIOR = 0.99     # a pixel teaches the texture only where the frame's mask and the render's coverage reach this
-
-
-def finite_difference_smoothness(texture: torch.Tensor) -> torch.Tensor:
-    """Phase 1's FD(T) (saft.reconstruct.losses, written out here: saft.appearance does not import the
-    reconstruction): mean L1 norm over channels of horizontal plus vertical neighbour differences."""
-    dx = (texture[:, 1:] - texture[:, :-1]).abs().sum(dim=-1).mean()
-    dy = (texture[1:] - texture[:-1]).abs().sum(dim=-1).mean()
-    return dx + dy
 
 
 def grid_at_vertices(grid: torch.Tensor, uvs: torch.Tensor) -> torch.Tensor:

@@ -18,14 +18,6 @@ def silhouette_loss(mask: torch.Tensor, target_mask: torch.Tensor) -> torch.Tens
     return F.mse_loss(mask, target_mask)
 
 
-def finite_difference_smoothness(texture: torch.Tensor) -> torch.Tensor:
-    """FD(T) of the paper's supplement: mean L1 norm (over channels) of horizontal plus vertical neighbour
-    differences of an (H, W, C) image."""
-    dx = (texture[:, 1:] - texture[:, :-1]).abs().sum(dim=-1).mean()
-    dy = (texture[1:] - texture[:-1]).abs().sum(dim=-1).mean()
-    return dx + dy
-
-
 def force_regularizer(accel: torch.Tensor, positions: torch.Tensor, camera_center: torch.Tensor,
                       along_weight: float = 0.0) -> torch.Tensor:
     """R_F: mean over frames and vertices of |F − (1 − w) (F·d) d|, d the unit direction from the camera to

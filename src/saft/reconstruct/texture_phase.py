@@ -14,7 +14,8 @@ import torch.nn.functional as F
 
 from saft.reconstruct.config import TextureConfig
 from saft.reconstruct.context import PhaseContext
-from saft.reconstruct.losses import finite_difference_smoothness, image_loss
+from saft.reconstruct.losses import image_loss
+from saft.render.texture_prior import finite_difference_smoothness
 
 
 @dataclass
