@@ -35,6 +35,8 @@ do not repeat is left alone), the frames (the first the detail test trusts) and 
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import torch
 import torch.nn.functional as Fnn
@@ -47,6 +49,7 @@ from saft.render import render_cloth
 from saft.render.texture_prior import finite_difference_smoothness
 from saft.scene.camera import Camera
 
+log = logging.getLogger("saft")
 INTERIOR = 0.99     # a pixel teaches the texture only where the frame's mask and the render's coverage reach this
 
 
@@ -186,6 +189,7 @@ def refit_texture(vertices, triangles, uvs, camera: Camera, rgb, mask, texture_s
                        size=np.shape(texture_srgb)[0], clusters=clusters, seed=seed, smoothing=smoothing)
     args = (model, vertices, triangles, uvs, camera, rgb, mask, smoothing)
     if float(np.mean(detail_repeat_per_frame(*args, frames=[1, 2])[1:3])) < FLOOR:
+        log.info("appearance: the phase-1 texture is kept (frames 1-2 repeat none of its detail: a plain fabric)")
         return np.asarray(texture_srgb, dtype=np.float32)[..., :3], []
     untrusted = set(untrusted_detail_frames(*args, trust))
     frames = [f for f in range(len(vertices)) if f not in untrusted][:int(count)]
@@ -193,4 +197,5 @@ def refit_texture(vertices, triangles, uvs, camera: Camera, rgb, mask, texture_s
                                       epochs=EPOCHS, lr=LR, lr_gain=LR_GAIN, gain_grid=GAIN_GRID,
                                       shift_grid=SHIFT_GRID, lr_shift=LR_SHIFT, keep_shading=KEEP_SHADING,
                                       device=device)
+    log.info("appearance: the phase-1 texture refitted on frames %s (appearance.texture_frames)", frames)
     return tex, frames
