@@ -17,6 +17,16 @@ from test_appearance_detail import _sheet, _woven_sheet_video   # a flat sheet f
 SIZE = 48         # 1.5 texels per pixel: one frame's samples are too few for the texels
 
 
+@pytest.fixture(autouse=True)
+def one_torch_thread():
+    """One intra-op thread, as `saft reconstruct` runs phase 3 on a 2-core machine (run.threads = auto): these
+    small fits took 75-83 s each with torch's two threads on a shared 2-core CPU, 4 s with one."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
 def _camera(width=48, height=48, f=80.0):
     """The 0.4 m sheet spans 32 pixels."""
     K = np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1.0]])
