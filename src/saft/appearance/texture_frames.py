@@ -75,7 +75,8 @@ def image_plane_axes(vertices: torch.Tensor, camera: Camera) -> torch.Tensor:
 def fit_texture_frames(vertices, triangles, uvs, camera: Camera, rgb, mask, frames, init_texture, *,
                        epochs: int = 100, lr: float = 0.02, lr_gain: float = 0.05, gain_grid: int = 4,
                        shift_grid: int = 0, lr_shift: float = 0.05, register_epochs: int = 0,
-                       keep_shading: float = 0.0, lambda_smooth: float = 1e-4, device="cpu") -> tuple[np.ndarray, np.ndarray, np.ndarray, list[float]]:
+                       keep_shading: float = 0.0, lambda_smooth: float = 1e-4,
+                       device="cpu") -> tuple[np.ndarray, np.ndarray, np.ndarray, list[float]]:
     """T refitted on `frames` (module docstring). vertices (F, V, 3) of every frame; rgb (F, H, W, 3) sRGB,
     mask (F, H, W) at the camera's size; frames: indices, the first the reference (gain 1, no shift);
     init_texture (S, S, 3) sRGB, the phase-1 texture. shift_grid > 0: each other frame's mesh is also
