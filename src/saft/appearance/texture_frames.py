@@ -182,7 +182,9 @@ def refit_texture(vertices, triangles, uvs, camera: Camera, rgb, mask, texture_s
     and blurred as GuidedMaps does with `smoothing`, `clusters`, `seed`), with the settings above. A
     texture whose detail frames 1-2 do not repeat (R below detail.FLOOR: a plain fabric, whose detail is
     frame 0's noise, which phase 3's blur inside the clusters already removes) is returned as it is: there
-    the refit only moved the shading (cotton, satin: BENCHMARKS.md). Returns the texture (S, S, 3) sRGB and
+    the refit only moved the shading (cotton, satin: BENCHMARKS.md); so is one whose detail fewer than half
+    the `count` frames line up (a satin on a curved clip, refitted on frames 0-1: −2.25 dB diffuse at two
+    seeds; BENCHMARKS.md "texture_frames on clips that start curved"). Returns the texture (S, S, 3) sRGB and
     the frames it was fitted on ([] when kept)."""
     if len(vertices) < 3:
         return np.asarray(texture_srgb, dtype=np.float32)[..., :3], []
@@ -194,6 +196,9 @@ def refit_texture(vertices, triangles, uvs, camera: Camera, rgb, mask, texture_s
         return np.asarray(texture_srgb, dtype=np.float32)[..., :3], []
     untrusted = set(untrusted_detail_frames(*args, trust))
     frames = [f for f in range(len(vertices)) if f not in untrusted][:int(count)]
+    if len(frames) < max(2, int(count) // 2):   # the motion lines the detail up in too few frames to refit on
+        log.info("appearance: the phase-1 texture is kept (only frames %s line its detail up)", frames)
+        return np.asarray(texture_srgb, dtype=np.float32)[..., :3], []
     tex, _, _, _ = fit_texture_frames(vertices, triangles, uvs, camera, rgb, mask, frames, texture_srgb,
                                       epochs=EPOCHS, lr=LR, lr_gain=LR_GAIN, gain_grid=GAIN_GRID,
                                       shift_grid=SHIFT_GRID, lr_shift=LR_SHIFT, keep_shading=KEEP_SHADING,
