@@ -138,17 +138,25 @@ def detail_repeat_per_frame(model, vertices, triangles, uvs, camera: Camera, rgb
 FLOOR = 0.1    # below this repeat on the first frames the detail is noise everywhere: no frame is judged
 
 
+def detail_trust_test(model, vertices, triangles, uvs, camera: Camera, rgb_srgb, mask, sigma: float,
+                      trust: float) -> tuple[float, list[int]]:
+    """(ref, untrusted): ref the mean detail repeat R (detail_repeat_per_frame) of frames 1 and 2, untrusted
+    the frames (sorted) whose R_f is below trust × ref; none when ref is below FLOOR (the rest of the frames
+    are then not evaluated). The video has at least 3 frames."""
+    args = (model, vertices, triangles, uvs, camera, rgb_srgb, mask, sigma)
+    first = detail_repeat_per_frame(*args, frames=[1, 2])   # the reference first: the rest only if it counts
+    ref = float(np.mean(first[1:3]))
+    if ref < FLOOR:
+        return ref, []
+    R = detail_repeat_per_frame(*args, frames=range(3, len(vertices)))
+    R[1:3] = first[1:3]
+    return ref, [int(f) for f in np.flatnonzero(R < trust * ref)]
+
+
 def untrusted_detail_frames(model, vertices, triangles, uvs, camera: Camera, rgb_srgb, mask, sigma: float,
                             trust: float) -> list[int]:
     """The frames (sorted) whose detail repeat R_f (detail_repeat_per_frame) is below trust × the mean R of
     frames 1 and 2; none when that reference is below FLOOR or the video has fewer than 3 frames."""
     if len(vertices) < 3 or trust <= 0:
         return []
-    args = (model, vertices, triangles, uvs, camera, rgb_srgb, mask, sigma)
-    first = detail_repeat_per_frame(*args, frames=[1, 2])   # the reference first: the rest only if it counts
-    ref = float(np.mean(first[1:3]))
-    if ref < FLOOR:
-        return []
-    R = detail_repeat_per_frame(*args, frames=range(3, len(vertices)))
-    R[1:3] = first[1:3]
-    return [int(f) for f in np.flatnonzero(R < trust * ref)]
+    return detail_trust_test(model, vertices, triangles, uvs, camera, rgb_srgb, mask, sigma, trust)[1]

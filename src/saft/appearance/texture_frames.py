@@ -42,7 +42,7 @@ import torch
 import torch.nn.functional as Fnn
 from scipy.ndimage import gaussian_filter
 
-from saft.appearance.detail import FLOOR, detail_repeat_per_frame, untrusted_detail_frames
+from saft.appearance.detail import FLOOR, detail_trust_test, untrusted_detail_frames
 from saft.appearance.guided import GuidedMaps
 from saft.appearance.params import linear_to_srgb, srgb_to_linear
 from saft.render import render_cloth
@@ -141,6 +141,12 @@ def keep_reference_shading(texture_srgb, reference_srgb, sigma: float) -> np.nda
     return linear_to_srgb(torch.as_tensor(out, dtype=torch.float32)).numpy()
 
 
+def guided_model(texture_srgb, smoothing: float, clusters: int, seed: int) -> GuidedMaps:
+    """The texture clustered and blurred as phase 3's GuidedMaps does (what the detail test measures against)."""
+    return GuidedMaps(srgb_to_linear(np.asarray(texture_srgb, dtype=np.float32)[..., :3]),
+                      size=np.shape(texture_srgb)[0], clusters=clusters, seed=seed, smoothing=smoothing)
+
+
 def choose_texture_frames(choice: str, count: int, texture_srgb, vertices, triangles, uvs, camera: Camera, rgb,
                           mask, trust: float = 0.5, smoothing: float = 4.0, clusters: int = 6,
                           seed: int = 0) -> list[int]:
@@ -155,9 +161,8 @@ def choose_texture_frames(choice: str, count: int, texture_srgb, vertices, trian
         return list(range(count))
     pool = np.arange(n_frames)
     if choice == "trusted":
-        model = GuidedMaps(srgb_to_linear(np.asarray(texture_srgb, dtype=np.float32)[..., :3]),
-                           size=np.shape(texture_srgb)[0], clusters=clusters, seed=seed, smoothing=smoothing)
-        untrusted = untrusted_detail_frames(model, vertices, triangles, uvs, camera, rgb, mask, smoothing, trust)
+        untrusted = untrusted_detail_frames(guided_model(texture_srgb, smoothing, clusters, seed), vertices,
+                                            triangles, uvs, camera, rgb, mask, smoothing, trust)
         pool = np.setdiff1d(pool, untrusted)
     elif choice != "spread":
         raise ValueError(f"unknown frame choice {choice!r}")
@@ -188,14 +193,12 @@ def refit_texture(vertices, triangles, uvs, camera: Camera, rgb, mask, texture_s
     the frames it was fitted on ([] when kept)."""
     if len(vertices) < 3:
         return np.asarray(texture_srgb, dtype=np.float32)[..., :3], []
-    model = GuidedMaps(srgb_to_linear(np.asarray(texture_srgb, dtype=np.float32)[..., :3]),
-                       size=np.shape(texture_srgb)[0], clusters=clusters, seed=seed, smoothing=smoothing)
-    args = (model, vertices, triangles, uvs, camera, rgb, mask, smoothing)
-    if float(np.mean(detail_repeat_per_frame(*args, frames=[1, 2])[1:3])) < FLOOR:
+    model = guided_model(texture_srgb, smoothing, clusters, seed)
+    ref, untrusted = detail_trust_test(model, vertices, triangles, uvs, camera, rgb, mask, smoothing, trust)
+    if ref < FLOOR:
         log.info("appearance: the phase-1 texture is kept (frames 1-2 repeat none of its detail: a plain fabric)")
         return np.asarray(texture_srgb, dtype=np.float32)[..., :3], []
-    untrusted = set(untrusted_detail_frames(*args, trust))
-    frames = [f for f in range(len(vertices)) if f not in untrusted][:int(count)]
+    frames = [f for f in range(len(vertices)) if f not in untrusted][:int(count)]   # untrusted: a short list
     if len(frames) < max(2, int(count) // 2):   # the motion lines the detail up in too few frames to refit on
         log.info("appearance: the phase-1 texture is kept (only frames %s line its detail up)", frames)
         return np.asarray(texture_srgb, dtype=np.float32)[..., :3], []
