@@ -7,6 +7,7 @@ and ctx.check_interrupt(phase) itself when its optimiser keeps its own epochs (t
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -65,8 +66,9 @@ class PhaseContext:
             self.state[f"{phase}_state"] = phase_state
         self.state["log"] = self.log.rows
         self.state["timings"] = self.timings
+        began = time.monotonic()
         save_checkpoint(self.out_dir, self.state)
-        self.clock.mark()
+        self.clock.mark(time.monotonic() - began)
 
     def check_interrupt(self, phase: str, epochs_done: int | None = None) -> None:
         """Raise Interrupted after Ctrl-C (or an on_epoch request); the checkpoint is already written."""

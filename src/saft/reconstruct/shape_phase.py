@@ -331,7 +331,7 @@ def _regularizers(ctx: PhaseContext, sim: ShapeSimulator, params: ShapeParams, c
     else:
         force = torch.zeros((), dtype=positions.dtype, device=positions.device)
     if tracks is not None:
-        hidden = (hidden_vertices(positions, torch.cat(depths), ctx.camera, sim.mean_edge_length) if depths
+        hidden = (hidden_vertices(positions, depths, ctx.camera, sim.mean_edge_length) if depths
                   else None)
         track = track_loss(positions, tracks, ctx.camera, cfg.track_huber, first_frame=start, hidden=hidden)
     else:

@@ -61,6 +61,7 @@ in fractions of the image and does not change with the working resolution).
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -306,16 +307,19 @@ def compute_vertex_tracks(rgb: torch.Tensor, mask: torch.Tensor, template: torch
                         strength=strength)
 
 
-def hidden_vertices(positions: torch.Tensor, depth: torch.Tensor, camera: Camera, tolerance: float) -> torch.Tensor:
+def hidden_vertices(positions: torch.Tensor, depths: Sequence[torch.Tensor], camera: Camera,
+                    tolerance: float) -> torch.Tensor:
     """(F, V) bool: the vertex lies more than `tolerance` behind the rendered surface at its pixel, i.e. the
-    current reconstruction hides it behind another part of the cloth (positions (F, V, 3), depth (F, H, W)
-    rendered camera depth of the same frames, 0 where nothing is drawn)."""
+    current reconstruction hides it behind another part of the cloth (positions (F, V, 3); depths: per frame
+    the rendered camera depth (H, W) or (1, H, W), 0 where nothing is drawn). Only the V pixels under the
+    vertices are read (gathering before any copy: converting R1's full depth maps cost 3.5 % of its run)."""
     with torch.no_grad():
         uv, z = project(positions.detach(), camera)
-        H, W = depth.shape[1:]
+        H, W = depths[0].shape[-2:]
         cols = uv[..., 0].round().long().clamp(0, W - 1)
         rows = uv[..., 1].round().long().clamp(0, H - 1)
-        d = torch.gather(depth.reshape(depth.shape[0], -1).to(z.dtype), 1, rows * W + cols)
+        index = rows * W + cols
+        d = torch.stack([depth.reshape(-1)[i] for depth, i in zip(depths, index)]).to(z.dtype)
         return (d > 0) & (z > d + tolerance)
 
 
