@@ -13,7 +13,7 @@ import torch
 
 from saft.render import render_cloth
 from saft.render.torch import antialias as aa
-from saft.render.torch import fused, raster
+from saft.render.torch import fused, fused_texture, raster
 from saft.render.torch import interpolate as interp
 from saft.render.torch import texture as texmod
 from saft.render.torch.rows import ScatterPlanar
@@ -136,10 +136,13 @@ def test_barycentric_and_texture_backward_match_autograd():
     assert torch.autograd.gradcheck(lambda b, a: interp.interp_compact(b, a, idx), (bw, A))
 
 
+@pytest.mark.parametrize("numba", [True, False], ids=["numba", "torch"])
 @pytest.mark.parametrize("shape", [(8, 6), (16, 16), (5, 1), (1, 4), (33, 17)])
-def test_fast_texture_matches_grid_sample_path(shape):
-    """texture_fast (render_cloth's SoA kernel) = texture_compact (grid_sample per mip level), clamp mode,
-    in value and in gradient to texels and coordinates, for bilinear, trilinear and capped mip levels."""
+def test_fast_texture_matches_grid_sample_path(shape, numba, monkeypatch):
+    """texture_fast (render_cloth's SoA kernel; on CPU the numba loops, or the torch ops CUDA runs) =
+    texture_compact (grid_sample per mip level), clamp mode, in value and in gradient to texels and
+    coordinates, for bilinear, trilinear and capped mip levels."""
+    monkeypatch.setattr(fused_texture, "USE_NUMBA", numba)
     torch.manual_seed(sum(shape))
     Ht, Wt = shape
     tex = torch.rand(Ht, Wt, 3, dtype=torch.float64, requires_grad=True)
@@ -251,3 +254,24 @@ def test_fast_texture_pyramid_cache_sees_in_place_changes():
     torch.testing.assert_close(fused.texture_fast(tex, u, v, da), fused.texture_fast(tex.clone(), u, v, da),
                                atol=0, rtol=0)
     torch.testing.assert_close(fused.texture_fast(tex, u, v, da), 0.5 * first, atol=1e-15, rtol=0)
+
+
+def test_numba_and_torch_lookups_agree_in_float32_and_keep_a_changing_textures_gradient(monkeypatch):
+    """The two CPU paths of texture_fast on a render's float32 texture and float64 coordinates, in value and
+    in every gradient; with a texture that has a gradient (its pyramid in a rewritten workspace) a second
+    lookup before the first one's backward must not change the first one's gradient."""
+    torch.manual_seed(5)
+    tex = torch.rand(64, 48, 3, requires_grad=True)
+    u = (torch.rand(500, dtype=torch.float64) * 1.1 - 0.05).requires_grad_(True)
+    v = (torch.rand(500, dtype=torch.float64) * 1.1 - 0.05).requires_grad_(True)
+    da = torch.rand(4, 500, dtype=torch.float64) * 0.05
+    w = torch.rand(3, 500)
+    results = []
+    for numba in (True, False):
+        monkeypatch.setattr(fused_texture, "USE_NUMBA", numba)
+        out = fused.texture_fast(tex, u, v, da)
+        other = fused.texture_fast(tex * 0.5, v, u, da)  # rewrites the pyramid workspace
+        results.append((out, *torch.autograd.grad((out * w).sum(), (tex, u, v))))
+        del other
+    for got, ref in zip(*results):
+        torch.testing.assert_close(got, ref, atol=2e-6, rtol=1e-5)

@@ -11,12 +11,14 @@ import weakref
 
 import torch
 
+from saft.render.torch import texture_numba
 from saft.render.torch.rows import const
 from saft.render.torch.texture import down2_adjoint_add_hwc_, down2_hwc, mip_count
 
 _GEOMETRY: dict = {}
 _WORKSPACE: dict = {}
 _PYRAMID: list = [None]  # (weakref to the texture, its _version, n_levels, flat pyramid): the last one made
+USE_NUMBA = True  # CPU tensors take texture_numba's loops (tests switch it off to check the torch path)
 
 
 def _geometry(Ht: int, Wt: int, C: int, n_levels: int, like: torch.Tensor):
@@ -97,6 +99,8 @@ class _TexFn(torch.autograd.Function):
         P = u.shape[0]
         sizes, offs, total, gf, gi = _geometry(Ht, Wt, C, n_levels, u)
         flat = _pyramid(tex, sizes, offs, total)  # tex itself: the cache knows it by identity
+        if USE_NUMBA and u.device.type == "cpu":
+            return _numba_forward(ctx, flat, tex, u, v, lo, frac, n_levels, (sizes, offs, total, C, gf, gi))
         if lo is None:
             L = torch.zeros(1, P, dtype=torch.int64, device=u.device)
         else:  # the upper level of a pixel on the last one gets weight frac = 0
@@ -130,11 +134,14 @@ class _TexFn(torch.autograd.Function):
         ctx.geo = (sizes, offs, total, C)
         ctx.needs = ctx.needs_input_grad[:3]
         ctx.uv_dtype = u.dtype
+        ctx.numba = False
         return out
 
     @staticmethod
     def backward(ctx, g):
         need_tex, need_u, need_v = ctx.needs
+        if ctx.numba:
+            return _numba_backward(ctx, g)
         cidx, fx, fy, insx, insy, bw, tv, w_, h_, frac = ctx.saved_tensors
         sizes, offs, total, C = ctx.geo
         g = g.contiguous()  # (C, P)
@@ -144,11 +151,7 @@ class _TexFn(torch.autograd.Function):
             # CPU), then level 0 copied out as the texture's gradient
             gflat = _workspace("grad", total * C, g).zero_()
             gflat.index_add_(0, cidx.view(-1), (bw * g[:, None, None]).view(-1))
-            for k in range(len(sizes) - 1, 0, -1):  # coarse to fine: add each level's adjoint
-                (h0, w0), (h, w) = sizes[k - 1], sizes[k]
-                down2_adjoint_add_hwc_(gflat[offs[k - 1] * C:(offs[k - 1] + h0 * w0) * C].view(h0, w0, C),
-                                       gflat[offs[k] * C:(offs[k] + h * w) * C].view(h, w, C))
-            g_tex = gflat[:sizes[0][0] * sizes[0][1] * C].view(sizes[0][0], sizes[0][1], C).clone()
+            g_tex = _texture_grad(gflat, sizes, offs, C)
         if need_u or need_v:
             gd = (tv * g[:, None, None]).sum(0).to(fx.dtype)  # (4, levels, P): <g, texel k>
             if frac is not None:
@@ -163,6 +166,52 @@ class _TexFn(torch.autograd.Function):
             if need_v:
                 gv = level_sum(((1.0 - fx) * (g2 - g0) + fx * (g3 - g1)) * (h_ * insy.to(fx.dtype)))
         return g_tex, gu, gv, None, None, None
+
+
+def _texture_grad(gflat: torch.Tensor, sizes, offs, C: int) -> torch.Tensor:
+    """The texture's gradient from its flat pyramid's (gflat, changed in place): each level's adjoint added
+    into the one below, coarse to fine, then level 0 copied out."""
+    for k in range(len(sizes) - 1, 0, -1):
+        (h0, w0), (h, w) = sizes[k - 1], sizes[k]
+        down2_adjoint_add_hwc_(gflat[offs[k - 1] * C:(offs[k - 1] + h0 * w0) * C].view(h0, w0, C),
+                               gflat[offs[k] * C:(offs[k] + h * w) * C].view(h, w, C))
+    return gflat[:sizes[0][0] * sizes[0][1] * C].view(sizes[0][0], sizes[0][1], C).clone()
+
+
+def _numba_forward(ctx, flat, tex, u, v, lo, frac, n_levels, geo):
+    """_TexFn.forward on CPU tensors by texture_numba.lookup; saves only the coordinates for the adjoint."""
+    texture_numba.load()
+    C = tex.shape[2]
+    u, v = u.detach().contiguous(), v.detach().contiguous()
+    lo = torch.empty(0, dtype=torch.int64) if lo is None else lo.contiguous()
+    frac = u.new_empty(0) if frac is None else frac.detach().contiguous()
+    gf, gi = geo[4].double().numpy(), geo[5].numpy()
+    out = torch.empty(C, u.shape[0], dtype=tex.dtype)
+    texture_numba.lookup(flat.numpy(), C, gf, gi, u.numpy(), v.numpy(), lo.numpy(), frac.numpy(), n_levels,
+                         out.numpy())
+    ctx.needs = ctx.needs_input_grad[:3]
+    if not (ctx.needs[1] or ctx.needs[2]):
+        flat = flat.new_empty(0)  # the adjoint reads the texels only for the coordinates' gradient
+    elif tex.requires_grad:
+        flat = flat.clone()  # a texture with gradient has its pyramid in a workspace the next call rewrites
+    ctx.save_for_backward(flat, u, v, lo, frac)
+    ctx.geo = geo[:4] + (gf, gi, n_levels)
+    ctx.numba = True
+    return out
+
+
+def _numba_backward(ctx, g):
+    need_tex, need_u, need_v = ctx.needs
+    flat, u, v, lo, frac = ctx.saved_tensors
+    sizes, offs, total, C, gf, gi, n_levels = ctx.geo
+    g = g.contiguous()
+    gflat = _workspace("grad", total * C, g).zero_() if need_tex else g.new_empty(0)
+    gu, gv = torch.empty_like(u), torch.empty_like(v)
+    texture_numba.lookup_adjoint(flat.numpy(), C, gf, gi, u.numpy(), v.numpy(), lo.numpy(), frac.numpy(),
+                                 n_levels, g.numpy(), gflat.numpy(), gu.numpy(), gv.numpy(), need_tex,
+                                 need_u or need_v)
+    g_tex = _texture_grad(gflat, sizes, offs, C) if need_tex else None
+    return g_tex, gu if need_u else None, gv if need_v else None, None, None, None
 
 
 def texture_fast(tex: torch.Tensor, u: torch.Tensor, v: torch.Tensor, uv_da: torch.Tensor | None = None,
