@@ -29,6 +29,7 @@ import threading
 
 import numpy as np
 
+from saft.numba_jit import jit
 from saft.physics.topology import ARCCOS_GUARD
 
 _C = ARCCOS_GUARD
@@ -36,7 +37,6 @@ _C3 = ARCCOS_GUARD**3  # the same Python constants as energy.py uses
 _C4 = ARCCOS_GUARD**4
 _EPS_LEN = 1e-12
 
-_JIT = dict(cache=True, fastmath=False, nogil=True)  # njit: nopython; fastmath off: deterministic
 _HELPERS = ("_spring_dir", "_hinge_geom", "_hess_q", "_hinge_scalars")  # inlined into the kernels (numba IR level)
 _KERNELS = ("step_forward", "step_adjoint")
 _loaded = False
@@ -51,14 +51,6 @@ def load():
     with _lock:
         if _loaded:
             return
-        from numba import njit  # heavy: only when the numba kernels are used
-
-        def jit(fn, **kw):
-            try:
-                return njit(**_JIT, **kw)(fn)
-            except RuntimeError:  # no writable cache location (read-only install): compile every process
-                return njit(**{**_JIT, "cache": False}, **kw)(fn)
-
         g = globals()
         for name in _HELPERS:
             g[name] = jit(g[name], inline="always")

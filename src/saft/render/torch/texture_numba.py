@@ -20,7 +20,8 @@ import threading
 
 import numpy as np
 
-_JIT = dict(cache=True, fastmath=False, nogil=True)
+from saft.numba_jit import jit
+
 _loaded = False
 _lock = threading.Lock()
 
@@ -31,14 +32,6 @@ def load():
     with _lock:
         if _loaded:
             return
-        from numba import njit
-
-        def jit(fn, **kw):
-            try:
-                return njit(**_JIT, **kw)(fn)
-            except RuntimeError:  # no writable cache location: compile in every process
-                return njit(**{**_JIT, "cache": False}, **kw)(fn)
-
         _taps = jit(_taps, inline="always")
         lookup = jit(lookup)
         lookup_adjoint = jit(lookup_adjoint)
