@@ -18,15 +18,19 @@ row r of the output is at y_ndc = (2r+1)/H − 1.
 from __future__ import annotations
 
 import math
+import threading
 
 import torch
 
 from saft.render.topology import topology
+from saft.render.torch import raster_numba
 from saft.render.torch.rows import check_pos_tri, const, scatter_rows
 
 _EDGE_EPS = 1e-4  # pixels: pixel centres this close outside a triangle still count as covered
 W_EPS = 1e-9  # triangles with a vertex at w ≤ this (at or behind the eye) are discarded
 _INT64_MAX = torch.iinfo(torch.int64).max
+_ZBUF = threading.local()  # raster_numba's z-buffer per thread (outputs render on a pool), cleared after each use
+USE_NUMBA = True  # CPU tensors take raster_numba's scanline loop (tests switch it off to check the torch path)
 
 
 # ------------------------------------------------------------------------------------------ visibility
@@ -64,6 +68,8 @@ def visibility(pos: torch.Tensor, tri: torch.Tensor, resolution: tuple[int, int]
     zABC = (zm[:, :, 0] + zm[:, :, 1] + zm[:, :, 2]) / a2.clamp_min(1e-30)  # z/w is affine in screen space
     lo = torch.ceil(xy.amin(2) - _EDGE_EPS).clamp_min(0)  # (x|y, B, T) pixel bounding box
     hi = torch.minimum(torch.floor(xy.amax(2) + _EDGE_EPS), const((W - 1, H - 1), p).view(2, 1, 1))
+    if USE_NUMBA and dev.type == "cpu":
+        return _visibility_numba(ABC, zABC, lo[1], torch.where(ok & (hi >= lo).all(0), hi[1], lo[1] - 1), B, H, W)
     nrows = torch.where(ok & (hi >= lo).all(0), hi[1] - lo[1] + 1, 0.0).long().reshape(-1)  # (B·T,)
     R = int(nrows.sum())
     if R == 0:
@@ -108,6 +114,25 @@ def visibility(pos: torch.Tensor, tri: torch.Tensor, resolution: tuple[int, int]
     pix_out = torch.nonzero(zbuf != _INT64_MAX).squeeze(1)
     tid_out = zbuf.index_select(0, pix_out) & 0xFFFFFFFF
     return pix_out, tid_out
+
+
+def _visibility_numba(ABC, zABC, row_lo, row_hi, B: int, H: int, W: int):
+    """visibility's spans and depth test by raster_numba (CPU tensors), in a z-buffer kept between calls of
+    the same size (collect leaves it cleared; a fresh one per call cost as much as the depth test)."""
+    raster_numba.load()
+    T = ABC.shape[-1]
+    tab = torch.cat([ABC.permute(0, 2, 1, 3).reshape(9, B * T), zABC.reshape(3, B * T)]).double().contiguous()
+    zbuf = getattr(_ZBUF, "buffer", None)
+    if zbuf is None or zbuf.numel() != B * H * W:
+        zbuf = _ZBUF.buffer = torch.full((B * H * W,), _INT64_MAX, dtype=torch.int64)
+    rows_used = torch.tensor([[H, -1]] * B, dtype=torch.int64)
+    raster_numba.depth_test(tab.numpy(), row_lo.long().reshape(-1).contiguous().numpy(),
+                            row_hi.long().reshape(-1).contiguous().numpy(), T, H, W, _EDGE_EPS, zbuf.numpy(),
+                            rows_used.numpy())
+    size = int((rows_used[:, 1] - rows_used[:, 0] + 1).clamp_min(0).sum()) * W
+    pix, tid = torch.empty(size, dtype=torch.int64), torch.empty(size, dtype=torch.int64)
+    n = raster_numba.collect(zbuf.numpy(), rows_used.numpy(), H, W, pix.numpy(), tid.numpy())
+    return pix[:n], tid[:n]
 
 
 def pixel_ndc(pix: torch.Tensor, H: int, W: int, dtype):
