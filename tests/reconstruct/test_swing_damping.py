@@ -68,3 +68,14 @@ def test_the_choice_is_checkpointed_and_a_resumed_run_keeps_it():
     still = _tracks_of(sim.template.expand(10, -1, -1), camera)        # not chosen again from other evidence
     assert run_damping(back.damping, sim, back.params, still, camera, phys) == 0.99
     assert run_damping(None, sim, back.params, still, camera, phys) == phys.damping
+
+
+def test_params_json_names_the_damping_the_run_used():
+    from saft.reconstruct.config import SaftConfig
+    from saft.reconstruct.pipeline import shape_params_summary
+
+    _, state, _ = _corner()
+    scene = type("S", (), {"frame_dt": 1 / 30})()
+    assert shape_params_summary(state.state_dict(), SaftConfig(), scene)["damping"] == PhysicsConfig().damping
+    state.damping = 0.99
+    assert shape_params_summary(state.state_dict(), SaftConfig(), scene)["damping"] == 0.99
