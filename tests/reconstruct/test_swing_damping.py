@@ -53,21 +53,28 @@ def test_a_swing_under_gravity_takes_the_low_damping_and_a_cloth_at_rest_the_def
     assert choose_damping(sim, state.params, _tracks_of(swinging, camera), camera, default, 0.0) == default   # off
 
 
-def test_the_choice_is_checkpointed_and_a_resumed_run_keeps_it():
+def test_the_choice_is_checkpointed_a_resumed_run_keeps_it_and_the_force_rates_fall_with_it():
     from saft.reconstruct.shape_phase import restore_shape_state
-    from saft.reconstruct.swing_damping import run_damping
+    from saft.reconstruct.swing_damping import FORCE_RATES, rate_scale, run_damping
 
     sim, state, camera = _corner()
     assert PhysicsConfig().swing_damping == 0.0 and state.damping is None   # off by default, chosen at epoch 0
+    rates = {n: s.lr for n, s in state.optimizer.specs.items()}
     phys = PhysicsConfig(swing_damping=0.99)
-    state.damping = run_damping(state.damping, sim, state.params, _tracks_of(_swing(sim, state, 0.99), camera),
-                                camera, phys)
+    state.damping = run_damping(state, sim, _tracks_of(_swing(sim, state, 0.99), camera), camera, phys)
     assert state.damping == 0.99
-    back = restore_shape_state(state.state_dict(), ShapeConfig(lr_v0=0), "cpu")
+    scale = rate_scale(PhysicsConfig().damping, 0.99)
+    assert {"const_accel", "vertex_accel", "field_accel"} <= set(FORCE_RATES) and abs(scale - 0.1) < 1e-12
+    for name, spec in state.optimizer.specs.items():
+        assert spec.lr == (rates[name] * scale if name in FORCE_RATES else rates[name]), name
+    back = restore_shape_state(state.state_dict(), ShapeConfig(lr_v0=0), "cpu")   # a new optimizer, cfg's rates
     assert back.damping == 0.99
     still = _tracks_of(sim.template.expand(10, -1, -1), camera)        # not chosen again from other evidence
-    assert run_damping(back.damping, sim, back.params, still, camera, phys) == 0.99
-    assert run_damping(None, sim, back.params, still, camera, phys) == phys.damping
+    assert run_damping(back, sim, still, camera, phys) == 0.99
+    assert back.optimizer.specs["vertex_accel"].lr == rates["vertex_accel"] * scale
+    _, fresh, _ = _corner()
+    assert run_damping(fresh, sim, still, camera, phys) == phys.damping    # at rest: the default, rates kept
+    assert {n: s.lr for n, s in fresh.optimizer.specs.items()} == rates
 
 
 def test_params_json_names_the_damping_the_run_used():

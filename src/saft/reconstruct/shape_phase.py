@@ -438,7 +438,7 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
             start_velocity(state.params, state.optimizer, sim, tracks, ctx.camera)
     if phys.rest_shape == "moving":             # flat exactly when v0 is learned (so a resumed run agrees)
         sim.use_rest_shape("flat" if state.params.v0_field is not None else "template")
-    state.damping = sim.damping = run_damping(state.damping, sim, state.params, tracks, ctx.camera, phys)
+    state.damping = sim.damping = run_damping(state, sim, tracks, ctx.camera, phys)   # swing_damping
     if cfg.window > 0 and state.states is None:
         zeros = sim.template.new_zeros((n_frames,) + tuple(sim.template.shape))
         state.states = FrameStates(zeros.clone(), zeros.clone(), 1)

@@ -30,6 +30,16 @@ log = logging.getLogger("saft")
 
 TRIAL_FRAMES = 10     # frames simulated from rest by the trial (1/3 s at 30 fps)
 GATE = 0.5            # the low damping is used where its residual is at most this share of the default's
+# A held acceleration a brings the cloth to the velocity d h a / (1 - d): 10x more with 0.99 than with 0.9.
+# The learning rates of the accelerations, tuned for the paper's damping, are scaled by rate_scale (the ratio
+# of 1 - d) where the low damping is used: unscaled, they overshot (the step guard cut them 1-2 times) and
+# the Newton one-corner scene went 24.0 -> 32.4; x0.25: 27.5, x0.1: 12.0 (BENCH_corner.md).
+FORCE_RATES = ("const_accel", "vertex_accel", "field_accel")
+
+
+def rate_scale(default: float, low: float) -> float:
+    """(1 - low) / (1 - default): how much less an acceleration's rate moves the cloth under `default`."""
+    return (1.0 - low) / (1.0 - default)
 
 
 def track_residual(positions: torch.Tensor, tracks: VertexTracks, camera: Camera) -> float:
@@ -72,12 +82,19 @@ def choose_damping(sim, params, tracks: VertexTracks | None, camera: Camera, def
     return chosen
 
 
-def run_damping(chosen: float | None, sim, params, tracks: VertexTracks | None, camera: Camera, phys) -> float:
-    """The run's damping: `chosen` (a resumed run's, from its checkpoint) or choose_damping's from
-    physics.damping and physics.swing_damping (`phys`: PhysicsConfig)."""
-    if chosen is not None:
-        return chosen
-    return choose_damping(sim, params, tracks, camera, phys.damping, phys.swing_damping)
+def run_damping(state, sim, tracks: VertexTracks | None, camera: Camera, phys) -> float:
+    """The run's damping: a resumed run's (state.damping, from its checkpoint) or choose_damping's from
+    physics.damping and physics.swing_damping (`phys`: PhysicsConfig). Where it is the low one, the learning
+    rates of the accelerations (FORCE_RATES) are scaled by rate_scale in state.optimizer, built afresh at every
+    start of the phase (`state`: ShapeState before its first epoch of this process)."""
+    chosen = state.damping
+    if chosen is None:
+        chosen = choose_damping(sim, state.params, tracks, camera, phys.damping, phys.swing_damping)
+    if chosen != phys.damping:
+        for name in FORCE_RATES:
+            if name in state.optimizer.specs:
+                state.optimizer.specs[name].lr *= rate_scale(phys.damping, chosen)
+    return chosen
 
 
-__all__ = ["GATE", "TRIAL_FRAMES", "choose_damping", "damping_residuals", "run_damping", "track_residual"]
+__all__ = ["FORCE_RATES", "GATE", "TRIAL_FRAMES", "choose_damping", "damping_residuals", "rate_scale", "run_damping", "track_residual"]
