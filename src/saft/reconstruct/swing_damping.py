@@ -13,8 +13,9 @@ worse; BENCHMARKS.md, "Relative shading in the shape renderer; damping"). What t
 below: before the first epoch, the cloth is simulated from rest with the initial parameters (gravity, no
 learned forces) through the first TRIAL_FRAMES frames under each damping, projected, and compared with the
 point tracks. Where the swing under gravity explains the tracks much better with the low damping (its
-residual at most GATE x the default's), the run uses physics.swing_damping; elsewhere (the cloth does not
-move from rest, or moves the same under both) the default, and the run is bit for bit the option's off.
+residual at most GATE x the default's), the run uses physics.swing_damping, and the accelerations' learning
+rates are scaled by rate_scale; elsewhere (the cloth does not move from rest, or moves the same under both)
+the default, and the run is bit for bit the option's off.
 """
 
 from __future__ import annotations
@@ -38,7 +39,8 @@ FORCE_RATES = ("const_accel", "vertex_accel", "field_accel")
 
 
 def rate_scale(default: float, low: float) -> float:
-    """(1 - low) / (1 - default): how much less an acceleration's rate moves the cloth under `default`."""
+    """(1 - low) / (1 - default): the accelerations' learning-rate factor under `low`, about the ratio of the
+    velocities a held acceleration reaches under `default` and under `low`."""
     return (1.0 - low) / (1.0 - default)
 
 
