@@ -27,6 +27,7 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "physics.substeps": (1, 1000, True),
     "physics.density": (0, INF, False),
     "physics.damping": (0, 1, False),
+    "physics.swing_damping": (0, 1, True),
     "shape.initial_frames": (1, INF, True),
     "shape.add_frame_every": (1, INF, True),
     "shape.final_epochs": (0, 1_000_000, True),

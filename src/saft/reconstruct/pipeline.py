@@ -90,7 +90,7 @@ def _shape_phase(ctx: PhaseContext, scene: Scene, cfg: SaftConfig) -> None:
 
 def _outputs_phase(ctx: PhaseContext, scene: Scene, cfg: SaftConfig) -> None:
     state = ctx.state
-    params = shape_params_summary(state["shape_state"]["params"], cfg, scene)
+    params = shape_params_summary(state["shape_state"], cfg, scene)
     write_shape_outputs(ctx.out_dir, scene, ctx.camera, state["positions"].numpy(), state["texture"].to(ctx.device),
                         state["shape_state"]["params"], params, ctx)
 
@@ -225,7 +225,7 @@ def reconstruct(scene: Scene, cfg: SaftConfig, out_dir: str | Path, *, resume: b
             atomic_write_json(out_dir / "timings.json", timings)
         ctx.checkpoint()
     positions = state["positions"].numpy()
-    params = shape_params_summary(state["shape_state"]["params"], cfg, scene)
+    params = shape_params_summary(state["shape_state"], cfg, scene)
     return RunOutcome(out_dir, positions, state["texture"].numpy(), params, timings)
 
 
@@ -237,15 +237,17 @@ def held_vertices(anchor_log10, h: float) -> dict:
             "anchor_stiffness": [float(v) for v in w]}
 
 
-def shape_params_summary(p: dict, cfg: SaftConfig, scene: Scene) -> dict:
+def shape_params_summary(shape_state: dict, cfg: SaftConfig, scene: Scene) -> dict:
+    """params.json from the shape state's checkpoint dict (its damping: the run's, physics.swing_damping's choice)."""
+    p, damping = shape_state["params"], shape_state.get("damping")
     lY, lB, lS = (float(p[k]) for k in ("log10_Y", "log10_B", "log10_S"))
     return {
         "Y": 10 ** lY, "B": 10 ** lB, "S": 10 ** lS, "log10_Y": lY, "log10_B": lB, "log10_S": lS,
         "constant_acceleration": [float(v) for v in p["const_accel"]],
         **({"light": [float(v) for v in p["light"]]} if "light" in p else {}),
         **(held_vertices(p["anchor_log10"], scene.frame_dt / cfg.physics.substeps) if "anchor_log10" in p else {}),
-        "damping": cfg.physics.damping, "density": cfg.physics.density, "frame_dt": scene.frame_dt,
-        "substeps": cfg.physics.substeps,
+        "damping": cfg.physics.damping if damping is None else damping, "density": cfg.physics.density,
+        "frame_dt": scene.frame_dt, "substeps": cfg.physics.substeps,
         "units": {"Y": "N/m", "B": "N·m/rad²", "S": "N·m/rad²", "constant_acceleration": "m/s²",
                   "forces.npy": "per-vertex accelerations, m/s², shape (frames-1, vertices, 3)"},
     }

@@ -40,6 +40,7 @@ from saft.reconstruct.initial_velocity import initial_velocity, start_velocity, 
 from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_loss
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
 from saft.reconstruct.step_guard import StepGuard
+from saft.reconstruct.swing_damping import run_damping
 from saft.reconstruct.tracks import VertexTracks, compute_vertex_tracks, hidden_vertices, track_loss
 from saft.reconstruct.window_hold import outside_window, per_frame, restore_outside_window
 
@@ -118,13 +119,14 @@ class ShapeState:
     epoch: int = 0
     states: FrameStates | None = None
     schedule: dict | None = None   # FrameSchedule.state_dict() after the last epoch
+    damping: float | None = None   # the run's velocity damping, chosen before the first epoch (swing_damping)
     # the solver's factors from earlier epochs' rollouts (physics/factor_cache.py), checkpointed with the rest
     factors: FactorCache = field(default_factory=FactorCache)
 
     def state_dict(self) -> dict:
         saved = {"params": {k: v.detach().cpu() for k, v in self.params.tensors().items()},
                  "optimizer": self.optimizer.state_dict(), "epoch": self.epoch, "guard": self.guard.state_dict(),
-                 "schedule": self.schedule, "factors": self.factors.state_dict()}
+                 "schedule": self.schedule, "factors": self.factors.state_dict(), "damping": self.damping}
         if self.states is not None:
             saved["frame_states"] = {"x": self.states.x.cpu(), "v": self.states.v.cpu(), "frames": self.states.frames,
                                      "fresh": self.states.fresh}
@@ -149,8 +151,7 @@ def _make_optimizer(params: ShapeParams, cfg: ShapeConfig) -> ClippedAdam:
 
 
 def _make_guard(cfg: ShapeConfig) -> StepGuard:
-    return StepGuard(ratio=cfg.backtrack_ratio, decay=cfg.backtrack_decay,
-                     recover_after=cfg.backtrack_recover_epochs)
+    return StepGuard(ratio=cfg.backtrack_ratio, decay=cfg.backtrack_decay, recover_after=cfg.backtrack_recover_epochs)
 
 
 def anchors_on(pinned, cfg: ShapeConfig, gravity_stated: bool = True) -> bool:
@@ -185,8 +186,7 @@ def new_shape_state(num_frames: int, num_vertices: int, gravity: np.ndarray, phy
         light=torch.zeros(3, dtype=dtype, device=device, requires_grad=True) if cfg.lr_light > 0 else None,
         anchor_log10=(torch.full((num_vertices,), float(cfg.anchor_log10_init), dtype=dtype, device=device,
                                  requires_grad=True) if anchors else None),
-        v0_field=torch.zeros(4, 3, dtype=dtype, device=device, requires_grad=True) if cfg.lr_v0 > 0 else None,
-    )
+        v0_field=torch.zeros(4, 3, dtype=dtype, device=device, requires_grad=True) if cfg.lr_v0 > 0 else None)
     return ShapeState(params, _make_optimizer(params, cfg), _make_guard(cfg))
 
 
@@ -195,7 +195,7 @@ def restore_shape_state(saved: dict, cfg: ShapeConfig, device) -> ShapeState:
     p = {k: v.to(device).requires_grad_(k in always_learned or cfg.optimize_stiffness) for k, v in saved["params"].items()}
     params = ShapeParams(**p)
     state = ShapeState(params, _make_optimizer(params, cfg), _make_guard(cfg), saved["epoch"],
-                       schedule=saved.get("schedule"))
+                       schedule=saved.get("schedule"), damping=saved.get("damping"))
     state.optimizer.load_state_dict(saved["optimizer"])
     state.guard.load_state_dict(saved.get("guard", {}))
     state.factors.load_state_dict(saved.get("factors", {}))
@@ -210,8 +210,7 @@ class ShapeSimulator:
 
     def __init__(self, template: torch.Tensor, quads: np.ndarray, phys: PhysicsConfig, frame_dt: float,
                  pinned: np.ndarray | None):
-        self.phys = phys
-        self.frame_dt = frame_dt
+        self.phys, self.frame_dt, self.damping = phys, frame_dt, phys.damping   # damping: see run_shape_phase
         self.template = template
         self.quads = quads
         self.rest_shape = None
@@ -262,7 +261,7 @@ class ShapeSimulator:
         return x, v
 
     def _physics(self, params: ShapeParams, a_vert: torch.Tensor):
-        damping = torch.tensor(self.phys.damping, dtype=self.template.dtype, device=self.template.device)
+        damping = torch.tensor(self.damping, dtype=self.template.dtype, device=self.template.device)
         anchor = None if params.anchor_log10 is None else 10.0 ** params.anchor_log10
         return PhysicsParams(log10_Y=params.log10_Y, log10_B=params.log10_B, log10_S=params.log10_S,
                              damping=damping, a_const=params.const_accel, a_vert=a_vert, anchor=anchor)
@@ -439,6 +438,7 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
             start_velocity(state.params, state.optimizer, sim, tracks, ctx.camera)
     if phys.rest_shape == "moving":             # flat exactly when v0 is learned (so a resumed run agrees)
         sim.use_rest_shape("flat" if state.params.v0_field is not None else "template")
+    state.damping = sim.damping = run_damping(state, sim, tracks, ctx.camera, phys)   # swing_damping
     if cfg.window > 0 and state.states is None:
         zeros = sim.template.new_zeros((n_frames,) + tuple(sim.template.shape))
         state.states = FrameStates(zeros.clone(), zeros.clone(), 1)
