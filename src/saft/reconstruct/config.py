@@ -180,6 +180,15 @@ class ShapeConfig:
     # 0.62) and left the other scenes within their noise, but R1's median went 0.438 -> 0.461 with the
     # last frame 2.1x the mean (issue 11 asks <= 2x). BENCHMARKS.md, "Relative shading in the shape renderer".
     lr_light: float = 0.0
+    # Where the light vector starts (saft.reconstruct.light); with lr_light = 0 and a non-zero vector, the
+    # light is held there (a known light). World frame, in the shape renderer's convention: the sRGB colour
+    # scales as 1 + light . n. (0, 0, 0) with lr_light = 0: unlit, the paper.
+    light_init: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # Q0 of the plain-fabric switch (saft.reconstruct.light.plain_cloth; 0 = off): where the tracks' median texture
+    # strength Q at frame 0 is below Q0, the whole track loss weighs min(1, Q / track_texture) also from rest
+    # and the light (lr_light > 0 or light_init) is kept; where Q >= Q0 the light is dropped (the unlit
+    # run). Needs a light.
+    plain_shading: float = 0.0
     # Soft anchors (saft.physics.rollout's anchor; not in the paper): every vertex may be held at its
     # template position by a zero-length spring of learned stiffness per unit mass w, implicit like the
     # cloth's own forces, so that a cloth held at points nobody named hangs from them under gravity instead
