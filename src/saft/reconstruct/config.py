@@ -187,7 +187,9 @@ class ShapeConfig:
     # Q0 of the plain-fabric switch (saft.reconstruct.light.plain_cloth; 0 = off): where the tracks' median texture
     # strength Q at frame 0 is below Q0, the whole track loss weighs min(1, Q / track_texture) also from rest
     # and the light (lr_light > 0 or light_init) is kept; where Q >= Q0 the light is dropped (the unlit
-    # run). Needs a light.
+    # run). Needs a light. 0.5 with lr_light 0.05 and light_init (0, 0.4, 0) (the appearance scenes' up), one
+    # run each: cotton 8.25 -> 5.18, lamé 12.4 -> 1.51, satin 2.77 -> 1.05, plaid 0.875 -> 0.782, print and
+    # every Newton scene / R1 (Q >= 1.1) unlit, identical (BENCH_plain.md). Off until measured more widely.
     plain_shading: float = 0.0
     # Soft anchors (saft.physics.rollout's anchor; not in the paper): every vertex may be held at its
     # template position by a zero-length spring of learned stiffness per unit mass w, implicit like the
