@@ -84,3 +84,12 @@ def test_plain_shading_keeps_the_light_and_weighs_the_tracks_down_on_a_plain_clo
     ctx, template, tracks = _plain_or_textured(False)
     assert plain_cloth(ctx, off, ShapeConfig(lr_light=0.05), torch.zeros(4, 4, 3), template, tracks) is tracks
     assert off.params.light is not None
+
+
+def test_a_held_light_survives_a_checkpoint_and_stays_held():
+    from saft.reconstruct.shape_phase import restore_shape_state
+
+    cfg = ShapeConfig(lr_light=0.0, light_init=(0.1, 0.4, 0.0))
+    back = restore_shape_state(_state(cfg).state_dict(), cfg, "cpu")
+    assert torch.allclose(back.params.light, torch.tensor([0.1, 0.4, 0.0], dtype=torch.float64))
+    assert "light" not in back.optimizer.specs

@@ -9,13 +9,13 @@ the simulated frames with the stiffnesses detached (it regularizes the geometry,
 the size of the external accelerations beyond the constant one, their component along the viewing
 directions of the CURRENT simulated vertices (or the template's) weighted by shape.force_along_weight (or
 force_along_weight_pinned when vertices are pinned; the paper: 0); L_track: the distance of the projected
-vertices to their optical-flow point tracks (saft.reconstruct.tracks; on a plain fabric saft.reconstruct.light;
-not in the paper); R_A: the held share of the soft anchors (ShapeSimulator.held_share; not in the paper); R_V: the
-size of the learned velocity at frame 0 (saft.reconstruct.initial_velocity; not in the paper). The optimized parameters are log10 Y, B, S (clamped to their ranges), a constant acceleration (gravity +
-mean wind), per-vertex per-frame accelerations and a per-frame affine acceleration field over the
-template (saft.reconstruct.force_field; not in the paper) and the relative shading's light (saft.reconstruct.light) and,
-with soft anchors (shape.anchors), log10 of each vertex's anchor stiffness and, with shape.lr_v0 > 0, the affine
-velocity at frame 0 (started from the point tracks), each with its own clipped Adam.
+vertices to their optical-flow point tracks (saft.reconstruct.tracks; not in the paper); R_A: the held share of the
+soft anchors (ShapeSimulator.held_share; not in the paper); R_V: the size of the learned velocity at frame 0
+(saft.reconstruct.initial_velocity; not in the paper). The optimized parameters are log10 Y, B, S (clamped to their
+ranges), a constant acceleration (gravity + mean wind), per-vertex per-frame accelerations and a per-frame affine
+acceleration field over the template (saft.reconstruct.force_field; not in the paper) and the relative shading's
+light (saft.reconstruct.light) and, with soft anchors (shape.anchors), log10 of each vertex's anchor stiffness and,
+with shape.lr_v0 > 0, the affine velocity at frame 0 (from the tracks), each by its own clipped Adam.
 """
 
 from __future__ import annotations
@@ -135,7 +135,7 @@ def _make_optimizer(params: ShapeParams, cfg: ShapeConfig) -> ClippedAdam:
              ParamSpec("vertex_accel", params.vertex_accel, cfg.lr_vertex_accel)]
     if params.field_accel is not None:
         specs.append(ParamSpec("field_accel", params.field_accel, cfg.lr_field_accel))
-    if params.light is not None and params.light.requires_grad:
+    if params.light is not None and cfg.lr_light > 0:   # a held light (lr 0) is never stepped
         specs.append(ParamSpec("light", params.light, cfg.lr_light))
     if params.anchor_log10 is not None:
         specs.append(ParamSpec("anchor_log10", params.anchor_log10, cfg.lr_anchor))
