@@ -188,6 +188,17 @@ class ShapeConfig:
     # 0.62) and left the other scenes within their noise, but R1's median went 0.438 -> 0.461 with the
     # last frame 2.1x the mean (issue 11 asks <= 2x). BENCHMARKS.md, "Relative shading in the shape renderer".
     lr_light: float = 0.0
+    # Where the light vector starts (saft.reconstruct.light); with lr_light = 0 and a non-zero vector, the
+    # light is held there (a known light). World frame, in the shape renderer's convention: the sRGB colour
+    # scales as 1 + light . n. (0, 0, 0) with lr_light = 0: unlit, the paper.
+    light_init: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # Q0 of the plain-fabric switch (saft.reconstruct.light.plain_cloth; 0 = off): where the tracks' median texture
+    # strength Q at frame 0 is below Q0, the whole track loss weighs min(1, Q / track_texture) also from rest
+    # and the light (lr_light > 0 or light_init) is kept; where Q >= Q0 the light is dropped (the unlit
+    # run). Needs a light. 0.5 with lr_light 0.05 and light_init (0, 0.4, 0) (the appearance scenes' up), one
+    # run each: cotton 8.25 -> 5.18, lamé 12.4 -> 1.51, satin 2.77 -> 1.05, plaid 0.875 -> 0.782, print and
+    # every Newton scene / R1 (Q >= 1.1) unlit, identical (BENCH_plain.md). Off until measured more widely.
+    plain_shading: float = 0.0
     # Soft anchors (saft.physics.rollout's anchor; not in the paper): every vertex may be held at its
     # template position by a zero-length spring of learned stiffness per unit mass w, implicit like the
     # cloth's own forces, so that a cloth held at points nobody named hangs from them under gravity instead

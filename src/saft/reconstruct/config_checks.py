@@ -44,6 +44,7 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "shape.lr_vertex_accel": (0, INF, True),
     "shape.lr_field_accel": (0, INF, True),
     "shape.lr_light": (0, INF, True),
+    "shape.plain_shading": (0, INF, True),
     "shape.lr_v0": (0, INF, True),
     "shape.lambda_v0": (0, INF, True),
     "shape.lr_anchor": (0, INF, True),

@@ -9,15 +9,13 @@ the simulated frames with the stiffnesses detached (it regularizes the geometry,
 the size of the external accelerations beyond the constant one, their component along the viewing
 directions of the CURRENT simulated vertices (or the template's) weighted by shape.force_along_weight (or
 force_along_weight_pinned when vertices are pinned; the paper: 0); L_track: the distance of the projected
-vertices to their optical-flow point tracks (saft.reconstruct.tracks; not in the paper); R_A: the held share
-of the soft anchors (ShapeSimulator.held_share; not in the paper); R_V: the size of the learned velocity at frame 0
-(saft.reconstruct.initial_velocity; not in the paper).
-The optimized parameters are log10 Y, B, S (clamped to their ranges), a constant acceleration (gravity +
-mean wind), per-vertex per-frame accelerations and a per-frame affine acceleration field over the
-template (saft.reconstruct.force_field; not in the paper) and, with shape.lr_light > 0, the light vector of
-the relative shading (saft.render.shading; not in the paper: the renderer is then lit relative to frame 0)
-and, with soft anchors (shape.anchors), log10 of each vertex's anchor stiffness and, with shape.lr_v0 > 0, the
-affine velocity at frame 0 (started from the point tracks), each with its own clipped Adam.
+vertices to their optical-flow point tracks (saft.reconstruct.tracks; not in the paper); R_A: the held share of the
+soft anchors (ShapeSimulator.held_share; not in the paper); R_V: the size of the learned velocity at frame 0
+(saft.reconstruct.initial_velocity; not in the paper). The optimized parameters are log10 Y, B, S (clamped to their
+ranges), a constant acceleration (gravity + mean wind), per-vertex per-frame accelerations and a per-frame affine
+acceleration field over the template (saft.reconstruct.force_field; not in the paper) and the relative shading's
+light (saft.reconstruct.light) and, with soft anchors (shape.anchors), log10 of each vertex's anchor stiffness and,
+with shape.lr_v0 > 0, the affine velocity at frame 0 (from the tracks), each by its own clipped Adam.
 """
 
 from __future__ import annotations
@@ -37,6 +35,7 @@ from saft.reconstruct.frame_schedule import FrameSchedule, window_first_frame
 from saft.reconstruct.context import PhaseContext
 from saft.reconstruct.force_field import affine_basis, total_accelerations
 from saft.reconstruct.initial_velocity import initial_velocity, start_velocity, velocity_prior
+from saft.reconstruct.light import initial_light, plain_cloth
 from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_loss
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
 from saft.reconstruct.step_guard import StepGuard
@@ -138,7 +137,7 @@ def _make_optimizer(params: ShapeParams, cfg: ShapeConfig) -> ClippedAdam:
              ParamSpec("vertex_accel", params.vertex_accel, cfg.lr_vertex_accel)]
     if params.field_accel is not None:
         specs.append(ParamSpec("field_accel", params.field_accel, cfg.lr_field_accel))
-    if params.light is not None:
+    if params.light is not None and cfg.lr_light > 0:   # a held light (lr 0) is never stepped
         specs.append(ParamSpec("light", params.light, cfg.lr_light))
     if params.anchor_log10 is not None:
         specs.append(ParamSpec("anchor_log10", params.anchor_log10, cfg.lr_anchor))
@@ -183,7 +182,7 @@ def new_shape_state(num_frames: int, num_vertices: int, gravity: np.ndarray, phy
                                  requires_grad=True),
         field_accel=(torch.zeros(max(num_frames - 1, 0), 4, 3, dtype=dtype, device=device, requires_grad=True)
                      if cfg.lr_field_accel > 0 else None),
-        light=torch.zeros(3, dtype=dtype, device=device, requires_grad=True) if cfg.lr_light > 0 else None,
+        light=initial_light(cfg, dtype, device),
         anchor_log10=(torch.full((num_vertices,), float(cfg.anchor_log10_init), dtype=dtype, device=device,
                                  requires_grad=True) if anchors else None),
         v0_field=torch.zeros(4, 3, dtype=dtype, device=device, requires_grad=True) if cfg.lr_v0 > 0 else None)
@@ -429,6 +428,7 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
               "anchor_log10": cfg.anchor_log10_range}
     with record_function("saft.shape.tracks"):
         tracks = shape_tracks(ctx, cfg, texture, sim.template)
+        tracks = plain_cloth(ctx, state, cfg, texture, sim.template, tracks)
     if state.epoch == 0 and state.params.v0_field is not None:   # seeded from the tracks, or dropped at rest
         start_velocity(state.params, state.optimizer, sim, tracks, ctx.camera)
         if phys.rest_shape == "moving" and state.params.v0_field is not None:   # the clip starts in motion:

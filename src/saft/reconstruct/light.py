@@ -1,0 +1,81 @@
+"""The light vector of the shape phase's relative shading (saft.render.shading): whether there is one, where
+it starts, and whether it is learned.
+
+shape.lr_light > 0 learns it, from shape.light_init; shape.lr_light = 0 with a non-zero shape.light_init
+holds it there (a known light: the diagnostic that tells a wrong light from a wrong shading model, or a light
+measured beside the video); both zero is the paper's unlit renderer (no light at all).
+
+The plain-fabric switch (shape.plain_shading; not in the paper): shading, not point tracks, as the shape cue
+of a plain fabric. On an untextured cloth the unlit shape renderer sees only the silhouette, and the optical
+flow follows the shading: the few tracks that pass the forward-backward check are up to 20 px off the true
+vertices in the cotton clip's large motion (frames 6-12), and at their full weight they make half of the loss.
+With a known light the relative shading (saft.render.shading) halves the cotton's error only once those tracks
+weigh little (BENCH_plain.md). So with shape.plain_shading = Q0 > 0, where the tracks' median texture strength
+Q at frame 0 (saft.reconstruct.tracks.texture_strength, in units of the video's noise) is below Q0, the whole
+track loss weighs min(1, Q / shape.track_texture) whether or not the clip starts moving (the gate that
+tracks.texture_confidence applies only to a clip that starts moving), and the light vector (shape.lr_light,
+from shape.light_init) is kept; where Q >= Q0 (a textured cloth) the light is dropped and the tracks are left
+as they are: the run is the unlit one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+
+import numpy as np
+import torch
+
+from saft.reconstruct.context import PhaseContext
+from saft.reconstruct.tracks import VertexTracks, texture_strength, visible_vertices
+
+log = logging.getLogger("saft")
+
+
+def light_used(cfg) -> bool:
+    """Whether the shape renderer shades at all (cfg: ShapeConfig)."""
+    return cfg.lr_light > 0 or any(float(v) != 0.0 for v in cfg.light_init)
+
+
+def light_learned(cfg) -> bool:
+    return cfg.lr_light > 0
+
+
+def initial_light(cfg, dtype=torch.float64, device="cpu") -> torch.Tensor | None:
+    """(3,) light vector at the start of the shape phase, or None (unlit); requires_grad only when learned."""
+    if not light_used(cfg):
+        return None
+    return torch.tensor([float(v) for v in cfg.light_init], dtype=dtype, device=device,
+                        requires_grad=light_learned(cfg))
+
+
+def texture_q(ctx: PhaseContext, template: torch.Tensor, texture: torch.Tensor) -> float:
+    """Q of the clip: the median texture strength (saft.reconstruct.tracks.texture_strength, in units of the
+    video's noise) at the template's visible vertices in frame 0; inf where none is visible."""
+    with torch.no_grad():
+        depth0 = ctx.render(ctx.template_positions[None].to(torch.float32), texture).depth[0]
+    mask0 = ctx.target_mask[0].detach().cpu().numpy()
+    start, ok = visible_vertices(template, ctx.camera, mask0, depth0.detach().cpu().numpy())
+    if not ok.any():
+        return float("inf")
+    return float(np.median(texture_strength(ctx.target_rgb[0].detach().cpu().numpy(), mask0, start[ok])))
+
+
+def plain_cloth(ctx: PhaseContext, state, cfg, texture: torch.Tensor, template: torch.Tensor,
+                tracks: VertexTracks | None) -> VertexTracks | None:
+    """Apply shape.plain_shading to the run (state: ShapeState; cfg: ShapeConfig): returns the tracks to
+    use; on a textured cloth drops the light from state's parameters and optimizer. A no-op when off, or
+    when the light is already gone (a resumed run of a textured cloth)."""
+    if cfg.plain_shading <= 0 or state.params.light is None:
+        return tracks
+    q = texture_q(ctx, template, texture)
+    plain = q < cfg.plain_shading
+    log.info("shape.plain_shading: texture strength Q = %.3g against %g: %s", q, cfg.plain_shading,
+             "plain, shaded, tracks weighed down" if plain else "textured, unlit")
+    if not plain:
+        state.params.light = None
+        state.optimizer.drop("light")
+        return tracks
+    if tracks is None or cfg.track_texture <= 0:
+        return tracks
+    return dataclasses.replace(tracks, strength=min(tracks.strength, 1.0, q / cfg.track_texture))
