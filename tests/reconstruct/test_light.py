@@ -93,3 +93,19 @@ def test_a_held_light_survives_a_checkpoint_and_stays_held():
     back = restore_shape_state(_state(cfg).state_dict(), cfg, "cpu")
     assert torch.allclose(back.params.light, torch.tensor([0.1, 0.4, 0.0], dtype=torch.float64))
     assert "light" not in back.optimizer.specs
+
+
+def test_the_light_starts_above_the_cloth_where_the_scene_states_gravity():
+    from saft.reconstruct.light import scene_up
+    from saft.reconstruct.shape_phase import new_shape_state
+
+    cfg = ShapeConfig(lr_light=0.05, light_from_above=0.4)
+    assert light_used(cfg)
+    up = scene_up([0.0, 0.0, -9.81])                       # a z-up world
+    np.testing.assert_allclose(up, [0.0, 0.0, 1.0])
+    state = new_shape_state(4, 9, np.zeros(3), PhysicsConfig(), cfg, "cpu", up=up)
+    torch.testing.assert_close(state.params.light.detach(), torch.tensor([0.0, 0.0, 0.4], dtype=torch.float64))
+    assert state.params.light.requires_grad
+    assert scene_up(None) is None and scene_up([0.0, 0.0, 0.0]) is None
+    unstated = new_shape_state(4, 9, np.zeros(3), PhysicsConfig(), cfg, "cpu", up=None)
+    assert torch.count_nonzero(unstated.params.light) == 0     # no stated gravity: no "above"; learned from zero

@@ -34,19 +34,32 @@ log = logging.getLogger("saft")
 
 def light_used(cfg) -> bool:
     """Whether the shape renderer shades at all (cfg: ShapeConfig)."""
-    return cfg.lr_light > 0 or any(float(v) != 0.0 for v in cfg.light_init)
+    return cfg.lr_light > 0 or any(float(v) != 0.0 for v in cfg.light_init) or cfg.light_from_above != 0.0
 
 
 def light_learned(cfg) -> bool:
     return cfg.lr_light > 0
 
 
-def initial_light(cfg, dtype=torch.float64, device="cpu") -> torch.Tensor | None:
-    """(3,) light vector at the start of the shape phase, or None (unlit); requires_grad only when learned."""
+def initial_light(cfg, dtype=torch.float64, device="cpu", up: np.ndarray | None = None) -> torch.Tensor | None:
+    """(3,) light vector at the start of the shape phase, or None (unlit): shape.light_init plus
+    shape.light_from_above times `up`, the scene's unit up (−gravity; None where the scene states no gravity);
+    requires_grad only when learned."""
     if not light_used(cfg):
         return None
-    return torch.tensor([float(v) for v in cfg.light_init], dtype=dtype, device=device,
-                        requires_grad=light_learned(cfg))
+    light = np.array([float(v) for v in cfg.light_init])
+    if up is not None:
+        light = light + cfg.light_from_above * np.asarray(up, dtype=np.float64)
+    return torch.tensor(light, dtype=dtype, device=device, requires_grad=light_learned(cfg))
+
+
+def scene_up(gravity) -> np.ndarray | None:
+    """The unit vector against a stated gravity (None: not stated, or zero)."""
+    if gravity is None:
+        return None
+    g = np.asarray(gravity, dtype=np.float64)
+    norm = float(np.linalg.norm(g))
+    return None if norm == 0.0 else -g / norm
 
 
 def texture_q(ctx: PhaseContext, template: torch.Tensor, texture: torch.Tensor) -> float:

@@ -29,6 +29,7 @@ from saft.reconstruct.config import SaftConfig
 from saft.reconstruct.config_checks import check_config_ranges
 from saft.reconstruct.context import PhaseContext, to_device_targets
 from saft.reconstruct.estimate import log_estimate
+from saft.reconstruct.light import scene_up
 from saft.reconstruct.out_dir import check_out_dir, create_out_dir
 from saft.reconstruct.outputs import write_shape_outputs
 from saft.reconstruct.progress import EpochLog, Progress
@@ -78,7 +79,8 @@ def _shape_phase(ctx: PhaseContext, scene: Scene, cfg: SaftConfig) -> None:
     ss = (restore_shape_state(state["shape_state"], cfg.shape, physics) if "shape_state" in state
           else new_shape_state(scene.num_frames, scene.template.num_vertices,
                                initial_const_accel(scene.gravity_or_default(), scene.pinned, cfg.shape, stated),
-                               cfg.physics, cfg.shape, physics, anchors=anchors_on(scene.pinned, cfg.shape, stated)))
+                               cfg.physics, cfg.shape, physics, anchors=anchors_on(scene.pinned, cfg.shape, stated),
+                               up=scene_up(scene.gravity)))
     if cfg.shape.enabled:
         positions = run_shape_phase(ctx, sim, ss, cfg.physics, cfg.shape, texture)
     else:

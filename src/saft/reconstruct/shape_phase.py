@@ -170,8 +170,9 @@ def initial_const_accel(gravity: np.ndarray, pinned, cfg: ShapeConfig, gravity_s
 
 
 def new_shape_state(num_frames: int, num_vertices: int, gravity: np.ndarray, phys: PhysicsConfig,
-                    cfg: ShapeConfig, device, dtype=torch.float64, anchors: bool = False) -> ShapeState:
-    """Fresh parameters; `gravity` is the initial constant acceleration (see initial_const_accel)."""
+                    cfg: ShapeConfig, device, dtype=torch.float64, anchors: bool = False, up=None) -> ShapeState:
+    """Fresh parameters; `gravity` is the initial constant acceleration (see initial_const_accel); `up`: the
+    scene's unit up (light.scene_up) for shape.light_from_above."""
     def scalar(v):
         return torch.tensor(float(v), dtype=dtype, device=device, requires_grad=cfg.optimize_stiffness)
 
@@ -182,7 +183,7 @@ def new_shape_state(num_frames: int, num_vertices: int, gravity: np.ndarray, phy
                                  requires_grad=True),
         field_accel=(torch.zeros(max(num_frames - 1, 0), 4, 3, dtype=dtype, device=device, requires_grad=True)
                      if cfg.lr_field_accel > 0 else None),
-        light=initial_light(cfg, dtype, device),
+        light=initial_light(cfg, dtype, device, up),
         anchor_log10=(torch.full((num_vertices,), float(cfg.anchor_log10_init), dtype=dtype, device=device,
                                  requires_grad=True) if anchors else None),
         v0_field=torch.zeros(4, 3, dtype=dtype, device=device, requires_grad=True) if cfg.lr_v0 > 0 else None)
