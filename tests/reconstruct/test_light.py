@@ -13,10 +13,11 @@ def _state(cfg):
     return new_shape_state(4, 9, np.zeros(3), PhysicsConfig(), cfg, "cpu")
 
 
-def test_no_light_by_default():
-    cfg = ShapeConfig()
+def test_unlit_as_the_paper_when_no_light_is_asked_for():
+    cfg = ShapeConfig(lr_light=0.0, plain_shading=0.0, light_from_above=0.0)
     assert not light_used(cfg) and initial_light(cfg) is None
     assert _state(cfg).params.light is None
+    assert light_used(ShapeConfig())   # the default: a learned light, kept on plain fabrics only (plain_cloth)
 
 
 def test_a_known_light_is_held_where_the_rate_is_zero():
@@ -80,9 +81,10 @@ def test_plain_shading_keeps_the_light_and_weighs_the_tracks_down_on_a_plain_clo
         else:
             assert state.params.light is not None and "light" in state.optimizer.specs
             assert out.strength < 0.5
-    off = _state(ShapeConfig(lr_light=0.05))             # plain_shading = 0: nothing changes
+    off = _state(ShapeConfig(lr_light=0.05, plain_shading=0.0))   # plain_shading = 0: nothing changes
     ctx, template, tracks = _plain_or_textured(False)
-    assert plain_cloth(ctx, off, ShapeConfig(lr_light=0.05), torch.zeros(4, 4, 3), template, tracks) is tracks
+    off_cfg = ShapeConfig(lr_light=0.05, plain_shading=0.0)
+    assert plain_cloth(ctx, off, off_cfg, torch.zeros(4, 4, 3), template, tracks) is tracks
     assert off.params.light is not None
 
 

@@ -71,8 +71,9 @@ class PhysicsConfig:
     # (saft.reconstruct.swing_damping), with the accelerations' learning rates scaled by (1 - this) / (1 -
     # damping). The paper's 0.9 brakes a falling cloth at 0.74 m/s (4 substeps at 30 fps); a cloth held at one
     # corner swings at 1.6 m/s. 0.99: one corner pinned, twin 10.75 -> 2.33, Newton 24.0 -> 12.0; the trial
-    # keeps the default on the other ten pinned independent scenes, R1 and the demo (BENCH_corner.md).
-    swing_damping: float = 0.0
+    # keeps the default on the other pinned independent scenes, the appearance clips, R1 and the demo (BENCHMARKS.md,
+    # "The one-corner scene: the damping brakes the swing"). The default since 2026-11-27.
+    swing_damping: float = 0.99
     log10_Y_init: float = DEFAULT_LOG10_Y
     log10_B_init: float = DEFAULT_LOG10_B
     log10_S_init: float = DEFAULT_LOG10_S
@@ -184,10 +185,11 @@ class ShapeConfig:
     # Learning rate of the first-order light vector of the relative shading (saft.render.shading; 0 = off,
     # the paper's unlit renderer): the shape renderer darkens or brightens each vertex as its normal turns
     # from frame 0's, so that a cloth tilting away from the light can be told from one tilting towards it.
-    # Off by default: 0.05 halved the wind scene's error without pins (a_unpinned, median of 3: 1.11 ->
-    # 0.62) and left the other scenes within their noise, but R1's median went 0.438 -> 0.461 with the
-    # last frame 2.1x the mean (issue 11 asks <= 2x). BENCHMARKS.md, "Relative shading in the shape renderer".
-    lr_light: float = 0.0
+    # On every cloth (plain_shading = 0) 0.05 halved the wind scene's error without pins (a_unpinned, median of
+    # 3: 1.11 -> 0.62) but R1's median went 0.438 -> 0.461 (BENCHMARKS.md, "Relative shading in the shape
+    # renderer"): by default the light is kept only on a plain fabric (plain_shading below). Unlit everywhere,
+    # the paper: lr_light = 0 and plain_shading = 0.
+    lr_light: float = 0.05
     # Where the light vector starts (saft.reconstruct.light); with lr_light = 0 and a non-zero vector, the
     # light is held there (a known light). World frame, in the shape renderer's convention: the sRGB colour
     # scales as 1 + light . n. (0, 0, 0) with lr_light = 0: unlit, the paper.
@@ -197,12 +199,14 @@ class ShapeConfig:
     # and the light (lr_light > 0 or light_init) is kept; where Q >= Q0 the light is dropped (the unlit
     # run). Needs a light. 0.5 with lr_light 0.05 and light_init (0, 0.4, 0) (the appearance scenes' up), one
     # run each: cotton 8.25 -> 5.18, lamé 12.4 -> 1.51, satin 2.77 -> 1.05, plaid 0.875 -> 0.782, print and
-    # every Newton scene / R1 (Q >= 1.1) unlit, identical (BENCH_plain.md). Off until measured more widely.
-    plain_shading: float = 0.0
+    # every Newton scene / R1 (Q >= 1.1) unlit, identical (BENCHMARKS.md, "Shading as the shape cue of plain
+    # cloth"). The default, with light_from_above 0.4, since 2026-11-27 (cotton 8.25 -> 5.85, lamé 12.4 -> 1.47,
+    # satin 2.77 -> 1.05, plaid 0.875 -> 0.76 at b3013bf).
+    plain_shading: float = 0.5
     # The light also starts at this times the scene's up (−gravity, where the scene states gravity): a sky and a
     # sun above the cloth. 0.4 with plain_shading 0.5 and lr_light 0.05 gives the row of light_init (0, 0.4, 0) on
     # the appearance scenes (whose up is +y): cotton 5.18, lamé 1.51, satin 1.05, plaid 0.78.
-    light_from_above: float = 0.0
+    light_from_above: float = 0.4
     # Soft anchors (saft.physics.rollout's anchor; not in the paper): every vertex may be held at its
     # template position by a zero-length spring of learned stiffness per unit mass w, implicit like the
     # cloth's own forces, so that a cloth held at points nobody named hangs from them under gravity instead
