@@ -10,9 +10,10 @@ of a plain fabric. On an untextured cloth the unlit shape renderer sees only the
 flow follows the shading: the few tracks that pass the forward-backward check are up to 20 px off the true
 vertices in the cotton clip's large motion (frames 6-12), and at their full weight they make half of the loss.
 With a known light the relative shading (saft.render.shading) halves the cotton's error only once those tracks
-weigh little (BENCH_plain.md). So with shape.plain_shading = Q0 > 0, where the tracks' median texture strength
-Q at frame 0 (saft.reconstruct.tracks.texture_strength, in units of the video's noise) is below Q0, the whole
-track loss weighs min(1, Q / shape.track_texture) whether or not the clip starts moving (the gate that
+weigh little (BENCHMARKS.md, "Shading as the shape cue of plain cloth"). So with shape.plain_shading = Q0 > 0,
+where the tracks' median texture strength Q at frame 0 (saft.reconstruct.tracks.texture_strength, in units of
+the video's noise) is below Q0, the whole track loss weighs min(1, Q / shape.track_texture) whether or not the
+clip starts moving (the gate that
 tracks.texture_confidence applies only to a clip that starts moving), and the light vector (shape.lr_light,
 from shape.light_init) is kept; where Q >= Q0 (a textured cloth) the light is dropped and the tracks are left
 as they are: the run is the unlit one.

@@ -34,7 +34,8 @@ GATE = 0.5            # the low damping is used where its residual is at most th
 # A held acceleration a brings the cloth to the velocity d h a / (1 - d): 10x more with 0.99 than with 0.9.
 # The learning rates of the accelerations, tuned for the paper's damping, are scaled by rate_scale (the ratio
 # of 1 - d) where the low damping is used: unscaled, they overshot (the step guard cut them 1-2 times) and
-# the Newton one-corner scene went 24.0 -> 32.4; x0.25: 27.5, x0.1: 12.0 (BENCH_corner.md).
+# the Newton one-corner scene went 24.0 -> 32.4; x0.25: 27.5, x0.1: 12.0 (BENCHMARKS.md, "The one-corner
+# scene: the damping brakes the swing").
 FORCE_RATES = ("const_accel", "vertex_accel", "field_accel")
 
 
@@ -99,4 +100,5 @@ def run_damping(state, sim, tracks: VertexTracks | None, camera: Camera, phys) -
     return chosen
 
 
-__all__ = ["FORCE_RATES", "GATE", "TRIAL_FRAMES", "choose_damping", "damping_residuals", "rate_scale", "run_damping", "track_residual"]
+__all__ = ["FORCE_RATES", "GATE", "TRIAL_FRAMES", "choose_damping", "damping_residuals", "rate_scale", "run_damping",
+           "track_residual"]
