@@ -127,7 +127,8 @@ def test_the_relative_shading_learns_a_light_and_saves_it(tiny_scene, tmp_path):
     state), the light gets gradients and moves from zero, and params.json reports it."""
     scene = tiny_scene.with_frames(4)
     cfg = load_config(SaftConfig, None, TINY_CONFIG + ["texture.epochs=10", "shape.final_epochs=4",
-                                                       "shape.add_frame_every=2", "shape.lr_light=0.05"])
+                                                       "shape.add_frame_every=2", "shape.lr_light=0.05",
+                                                       "shape.plain_shading=0"])   # lit on every cloth
     outcome = reconstruct(scene, cfg, tmp_path / "lit", quiet=True)
     assert np.isfinite(outcome.positions).all()
     light = json.loads((tmp_path / "lit" / "params.json").read_text())["light"]

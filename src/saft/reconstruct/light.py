@@ -51,6 +51,8 @@ def initial_light(cfg, dtype=torch.float64, device="cpu", up: np.ndarray | None 
     light = np.array([float(v) for v in cfg.light_init])
     if up is not None:
         light = light + cfg.light_from_above * np.asarray(up, dtype=np.float64)
+    if not light_learned(cfg) and not light.any():
+        return None  # a zero light held: the unlit renderer, without the shading's cost
     return torch.tensor(light, dtype=dtype, device=device, requires_grad=light_learned(cfg))
 
 
