@@ -1,6 +1,9 @@
-"""numba compilation as saft's hand-written CPU kernels use it (physics.kernels_numba, render.torch.texture_numba)."""
+"""numba compilation as saft's hand-written CPU kernels use it (physics.kernels_numba, render.torch.texture_numba,
+render.torch.raster_numba)."""
 
 from __future__ import annotations
+
+import threading
 
 JIT_OPTIONS = dict(cache=True, fastmath=False, nogil=True)  # nopython; fastmath off: deterministic results
 
@@ -15,3 +18,20 @@ def jit(fn, **options):
         return njit(**JIT_OPTIONS, **options)(fn)
     except RuntimeError:
         return njit(**{**JIT_OPTIONS, "cache": False}, **options)(fn)
+
+
+_lock = threading.Lock()
+
+
+def jit_in_place(namespace: dict, kernels: tuple[str, ...], inlined: tuple[str, ...] = ()) -> None:
+    """Replace a module's plain Python functions (`namespace`: its globals()) by numba dispatchers: the
+    `inlined` helpers first (inline="always"; the kernels resolve them as globals when compiled), then the
+    `kernels`. Idempotent (the module's "_jitted" flag) and thread-safe; raises ImportError without numba."""
+    with _lock:
+        if namespace.get("_jitted"):
+            return
+        for name in inlined:
+            namespace[name] = jit(namespace[name], inline="always")
+        for name in kernels:
+            namespace[name] = jit(namespace[name])
+        namespace["_jitted"] = True

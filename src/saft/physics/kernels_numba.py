@@ -25,11 +25,10 @@ symmetric.
 
 from __future__ import annotations
 
-import threading
 
 import numpy as np
 
-from saft.numba_jit import jit
+from saft.numba_jit import jit_in_place
 from saft.physics.topology import ARCCOS_GUARD
 
 _C = ARCCOS_GUARD
@@ -39,24 +38,12 @@ _EPS_LEN = 1e-12
 
 _HELPERS = ("_spring_dir", "_hinge_geom", "_hess_q", "_hinge_scalars")  # inlined into the kernels (numba IR level)
 _KERNELS = ("step_forward", "step_adjoint")
-_loaded = False
-_lock = threading.Lock()
 
 
 def load():
     """Jit the kernels (from the on-disk cache when there is one): replaces this module's plain Python
-    functions by numba dispatchers, helpers first (the kernels resolve them as globals when compiled).
-    Idempotent; raises ImportError without numba."""
-    global _loaded
-    with _lock:
-        if _loaded:
-            return
-        g = globals()
-        for name in _HELPERS:
-            g[name] = jit(g[name], inline="always")
-        for name in _KERNELS:
-            g[name] = jit(g[name])
-        _loaded = True
+    functions by numba dispatchers, helpers first. Idempotent; raises ImportError without numba."""
+    jit_in_place(globals(), _KERNELS, _HELPERS)
 
 
 def _spring_dir(x, i, j, u):

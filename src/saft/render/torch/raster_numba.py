@@ -13,22 +13,13 @@ Jitted on first use (``load()``), from numba's on-disk cache when there is one.
 from __future__ import annotations
 
 import math
-import threading
 
-from saft.numba_jit import jit
-
-_loaded = False
-_lock = threading.Lock()
+from saft.numba_jit import jit_in_place
 
 
 def load():
-    """Jit the kernel; idempotent."""
-    global _loaded, depth_test, collect
-    with _lock:
-        if not _loaded:
-            depth_test = jit(depth_test)
-            collect = jit(collect)
-            _loaded = True
+    """Jit the kernels; idempotent."""
+    jit_in_place(globals(), ("depth_test", "collect"))
 
 
 def depth_test(tab, row_lo, row_hi, T, H, W, eps, zbuf, rows_used):

@@ -16,26 +16,15 @@ Compiled with ``cache=True``, without ``fastmath`` (deterministic); single-threa
 from __future__ import annotations
 
 import math
-import threading
 
 import numpy as np
 
-from saft.numba_jit import jit
-
-_loaded = False
-_lock = threading.Lock()
+from saft.numba_jit import jit_in_place
 
 
 def load():
     """Jit the kernels (from numba's on-disk cache when there is one); idempotent."""
-    global _loaded, _taps, lookup, lookup_adjoint
-    with _lock:
-        if _loaded:
-            return
-        _taps = jit(_taps, inline="always")
-        lookup = jit(lookup)
-        lookup_adjoint = jit(lookup_adjoint)
-        _loaded = True
+    jit_in_place(globals(), ("lookup", "lookup_adjoint"), ("_taps",))
 
 
 def _taps(u, v, gf, gi, level, out_i, out_w):
