@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from saft.reconstruct.context import PhaseContext
-from saft.reconstruct.tracks import VertexTracks, texture_strength, visible_vertices
+from saft.reconstruct.tracks import VertexTracks, texture_q, visible_vertices
 
 log = logging.getLogger("saft")
 
@@ -65,16 +65,13 @@ def scene_up(gravity) -> np.ndarray | None:
     return None if norm == 0.0 else -g / norm
 
 
-def texture_q(ctx: PhaseContext, template: torch.Tensor, texture: torch.Tensor) -> float:
-    """Q of the clip: the median texture strength (saft.reconstruct.tracks.texture_strength, in units of the
-    video's noise) at the template's visible vertices in frame 0; inf where none is visible."""
+def clip_texture_q(ctx: PhaseContext, template: torch.Tensor, texture: torch.Tensor) -> float:
+    """Q of the clip (saft.reconstruct.tracks.texture_q) at the template's vertices visible in frame 0."""
     with torch.no_grad():
         depth0 = ctx.render(ctx.template_positions[None].to(torch.float32), texture).depth[0]
     mask0 = ctx.target_mask[0].detach().cpu().numpy()
     start, ok = visible_vertices(template, ctx.camera, mask0, depth0.detach().cpu().numpy())
-    if not ok.any():
-        return float("inf")
-    return float(np.median(texture_strength(ctx.target_rgb[0].detach().cpu().numpy(), mask0, start[ok])))
+    return texture_q(ctx.target_rgb[0].detach().cpu().numpy(), mask0, start, ok)
 
 
 def plain_cloth(ctx: PhaseContext, state, cfg, texture: torch.Tensor, template: torch.Tensor,
@@ -84,7 +81,7 @@ def plain_cloth(ctx: PhaseContext, state, cfg, texture: torch.Tensor, template: 
     when the light is already gone (a resumed run of a textured cloth)."""
     if cfg.plain_shading <= 0 or state.params.light is None:
         return tracks
-    q = texture_q(ctx, template, texture)
+    q = clip_texture_q(ctx, template, texture)
     plain = q < cfg.plain_shading
     log.info("shape.plain_shading: texture strength Q = %.3g against %g: %s", q, cfg.plain_shading,
              "plain, shaded, tracks weighed down" if plain else "textured, unlit")

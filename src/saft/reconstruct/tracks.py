@@ -241,13 +241,20 @@ def starts_moving(mask: np.ndarray, share: float = START_SHARE) -> bool:
     return bool(change[0] >= share * np.median(change) and change[0] > 0)
 
 
+def texture_q(rgb0: np.ndarray, mask0: np.ndarray, points: np.ndarray, valid: np.ndarray) -> float:
+    """Q of a clip: the median texture_strength at the points that start a track (points (P, 2), valid (P,)
+    bool); inf where none does."""
+    if not valid.any():
+        return float("inf")
+    return float(np.median(texture_strength(rgb0, mask0, points[valid])))
+
+
 def texture_confidence(rgb0: np.ndarray, mask0: np.ndarray, points: np.ndarray, valid: np.ndarray,
                        q0: float) -> float:
-    """Weight min(1, Q / q0) of a clip's track loss, Q the median texture_strength of the tracks that start
-    (points (P, 2), valid (P,) bool); 1 for q0 = 0 or no track."""
+    """Weight min(1, Q / q0) of a clip's track loss (Q: texture_q); 1 for q0 = 0 or no track."""
     if q0 <= 0 or not valid.any():
         return 1.0
-    return float(min(1.0, np.median(texture_strength(rgb0, mask0, points[valid])) / q0))
+    return min(1.0, texture_q(rgb0, mask0, points, valid) / q0)
 
 
 def project(points: torch.Tensor, camera: Camera) -> tuple[torch.Tensor, torch.Tensor]:
@@ -350,6 +357,6 @@ def track_loss(positions: torch.Tensor, tracks: VertexTracks, camera: Camera, hu
     return (h[valid] * w).sum() / w.sum().clamp_min(1e-12)
 
 
-__all__ = ["VertexTracks", "compute_vertex_tracks", "end_at_colour_drift", "texture_strength", "texture_confidence",
+__all__ = ["VertexTracks", "compute_vertex_tracks", "end_at_colour_drift", "texture_strength", "texture_q", "texture_confidence",
            "noise_level", "starts_moving", "START_SHARE", "track_loss", "hidden_vertices", "track_points", "project", "visible_vertices",
            "dense_flow", "bilinear_sample", "to_gray_u8"]

@@ -68,9 +68,10 @@ def visibility(pos: torch.Tensor, tri: torch.Tensor, resolution: tuple[int, int]
     zABC = (zm[:, :, 0] + zm[:, :, 1] + zm[:, :, 2]) / a2.clamp_min(1e-30)  # z/w is affine in screen space
     lo = torch.ceil(xy.amin(2) - _EDGE_EPS).clamp_min(0)  # (x|y, B, T) pixel bounding box
     hi = torch.minimum(torch.floor(xy.amax(2) + _EDGE_EPS), const((W - 1, H - 1), p).view(2, 1, 1))
+    drawn = ok & (hi >= lo).all(0)  # (B, T): kept and with a pixel centre in its bounding box
     if USE_NUMBA and dev.type == "cpu":
-        return _visibility_numba(ABC, zABC, lo[1], torch.where(ok & (hi >= lo).all(0), hi[1], lo[1] - 1), B, H, W)
-    nrows = torch.where(ok & (hi >= lo).all(0), hi[1] - lo[1] + 1, 0.0).long().reshape(-1)  # (B·T,)
+        return _visibility_numba(ABC, zABC, lo[1], torch.where(drawn, hi[1], lo[1] - 1), B, H, W)
+    nrows = torch.where(drawn, hi[1] - lo[1] + 1, 0.0).long().reshape(-1)  # (B·T,)
     R = int(nrows.sum())
     if R == 0:
         e = torch.zeros(0, dtype=torch.int64, device=dev)
