@@ -81,6 +81,15 @@ def test_plain_shading_keeps_the_light_and_weighs_the_tracks_down_on_a_plain_clo
         else:
             assert state.params.light is not None and "light" in state.optimizer.specs
             assert out.strength < 0.5
+    ctx, template, tracks = _plain_or_textured(False)              # a plain cloth in a clip that starts moving:
+    mask = torch.zeros(4, 64, 64)                                   # the silhouette jumps from frame 0 to 1
+    mask[0, 10:50, 10:50] = 1
+    mask[1:, 16:56, 10:50] = 1
+    mask[3, 16:57, 10:50] = 1
+    ctx.target_mask = mask
+    state = _state(cfg)
+    assert plain_cloth(ctx, state, cfg, torch.zeros(4, 4, 3), template, tracks) is tracks
+    assert state.params.light is None and "light" not in state.optimizer.specs
     off = _state(ShapeConfig(lr_light=0.05, plain_shading=0.0))   # plain_shading = 0: nothing changes
     ctx, template, tracks = _plain_or_textured(False)
     off_cfg = ShapeConfig(lr_light=0.05, plain_shading=0.0)

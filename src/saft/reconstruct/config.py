@@ -201,7 +201,9 @@ class ShapeConfig:
     # run each: cotton 8.25 -> 5.18, lamé 12.4 -> 1.51, satin 2.77 -> 1.05, plaid 0.875 -> 0.782, print and
     # every Newton scene / R1 (Q >= 1.1) unlit, identical (BENCHMARKS.md, "Shading as the shape cue of plain
     # cloth"). The default, with light_from_above 0.4, since 2026-11-27 (cotton 8.25 -> 5.85, lamé 12.4 -> 1.47,
-    # satin 2.77 -> 1.05, plaid 0.875 -> 0.76 at b3013bf).
+    # satin 2.77 -> 1.05, plaid 0.875 -> 0.76 at b3013bf). A plain fabric in a clip that starts moving stays
+    # unlit: the light lost there (clips cut at frame 24: satin 3.49 -> 7.83, lamé 4.76 -> 9.55, plaid 0.95 ->
+    # 1.14; cotton 27.8 -> 20.5).
     plain_shading: float = 0.5
     # The light also starts at this times the scene's up (−gravity, where the scene states gravity): a sky and a
     # sun above the cloth. 0.4 with plain_shading 0.5 and lr_light 0.05 gives the row of light_init (0, 0.4, 0) on

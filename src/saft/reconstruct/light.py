@@ -16,7 +16,9 @@ the video's noise) is below Q0, the whole track loss weighs min(1, Q / shape.tra
 clip starts moving (the gate that
 tracks.texture_confidence applies only to a clip that starts moving), and the light vector (shape.lr_light,
 from shape.light_init) is kept; where Q >= Q0 (a textured cloth) the light is dropped and the tracks are left
-as they are: the run is the unlit one.
+as they are: the run is the unlit one. A plain fabric in a clip that starts moving (tracks.starts_moving) is
+unlit too: there the light lost (satin 3.49 -> 7.83, lamé 4.76 -> 9.55, plaid 0.95 -> 1.14, cotton 27.8 ->
+20.5; BENCHMARKS.md, "The plain-fabric light on clips that start moving").
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ import numpy as np
 import torch
 
 from saft.reconstruct.context import PhaseContext
-from saft.reconstruct.tracks import VertexTracks, texture_q, visible_vertices
+from saft.reconstruct.tracks import VertexTracks, starts_moving, texture_q, visible_vertices
 
 log = logging.getLogger("saft")
 
@@ -77,15 +79,18 @@ def clip_texture_q(ctx: PhaseContext, template: torch.Tensor, texture: torch.Ten
 def plain_cloth(ctx: PhaseContext, state, cfg, texture: torch.Tensor, template: torch.Tensor,
                 tracks: VertexTracks | None) -> VertexTracks | None:
     """Apply shape.plain_shading to the run (state: ShapeState; cfg: ShapeConfig): returns the tracks to
-    use; on a textured cloth drops the light from state's parameters and optimizer. A no-op when off, or
+    use; on a textured cloth, and on a plain one in a clip that starts moving, drops the light from state's
+    parameters and optimizer (the unlit run, tracks untouched). A no-op when off, or
     when the light is already gone (a resumed run of a textured cloth)."""
     if cfg.plain_shading <= 0 or state.params.light is None:
         return tracks
     q = clip_texture_q(ctx, template, texture)
     plain = q < cfg.plain_shading
+    moving = plain and starts_moving(ctx.target_mask.detach().cpu().numpy())
     log.info("shape.plain_shading: texture strength Q = %.3g against %g: %s", q, cfg.plain_shading,
-             "plain, shaded, tracks weighed down" if plain else "textured, unlit")
-    if not plain:
+             "textured, unlit" if not plain else "plain but the clip starts moving, unlit" if moving
+             else "plain, shaded, tracks weighed down")
+    if not plain or moving:
         state.params.light = None
         state.optimizer.drop("light")
         return tracks
