@@ -150,3 +150,15 @@ def test_without_pins_soft_anchors_hold_the_top_of_a_hanging_cloth(tiny_scene, t
     log_w = np.log10(params["anchor_stiffness"]).reshape(TINY.grid, TINY.grid)   # row 0: the truly held top
     assert scene.gravity is not None and 0 < len(held) < scene.template.num_vertices / 2
     assert log_w[:2].mean() > log_w[TINY.grid // 2:].mean() + 2   # held at the top, the lower half let go
+
+
+def test_air_drag_runs_through_the_pipeline_and_reports_its_learned_coefficient(tiny_scene, tmp_path):
+    """physics.air_drag > 0: the drag coefficient is learned (it moves from its prior) and params.json reports it."""
+    scene = tiny_scene.with_frames(4)
+    cfg = load_config(SaftConfig, None, TINY_CONFIG + ["texture.epochs=6", "shape.final_epochs=4",
+                                                       "shape.add_frame_every=2", "physics.air_drag=0.6",
+                                                       "shape.lr_air_drag=0.2"])
+    outcome = reconstruct(scene, cfg, tmp_path / "drag", quiet=True)
+    assert np.isfinite(outcome.positions).all()
+    drag = json.loads((tmp_path / "drag" / "params.json").read_text())["air_drag"]
+    assert 0.01 <= drag <= 5.0 and abs(drag - 0.6) > 1e-4
