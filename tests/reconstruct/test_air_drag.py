@@ -59,3 +59,30 @@ def test_config_checks_the_drag_and_its_range():
     cfg.physics.air_drag_range = (0.0, 1.0)
     with pytest.raises(SaftInputError, match="air_drag_range"):
         check_config_ranges(cfg)
+
+
+def test_the_swing_gate_drops_the_drag_where_the_default_damping_is_kept(monkeypatch):
+    import saft.reconstruct.air_drag as ad
+
+    seen = []
+
+    def fake_run_damping(chosen):
+        def run(state, sim, tracks, camera, phys):
+            seen.append(state.params.log10_drag)   # the trial runs without the drag
+            return chosen
+        return run
+
+    for where, chosen, kept in (("swing", 0.9, False), ("swing", 0.99, True), ("always", 0.9, True)):
+        phys = PhysicsConfig(air_drag=0.6, air_drag_where=where)
+        sim, state = _setup(phys)
+        monkeypatch.setattr(ad, "run_damping", fake_run_damping(chosen))
+        assert ad.run_damping_and_drag(state, sim, None, None, phys) == chosen
+        assert seen.pop() is None
+        assert (state.params.log10_drag is not None) == kept
+        assert ("log10_drag" in state.optimizer.specs) == kept
+        assert ("log10_drag" in state.state_dict()["params"]) == kept
+    # off (air_drag = 0): nothing to drop
+    phys = PhysicsConfig()
+    sim, state = _setup(phys)
+    monkeypatch.setattr(ad, "run_damping", fake_run_damping(0.9))
+    assert ad.run_damping_and_drag(state, sim, None, None, phys) == 0.9 and state.params.log10_drag is None
