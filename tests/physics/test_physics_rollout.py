@@ -31,8 +31,10 @@ def _setup(seed=0, n=4, wave=0.02):
     return t, x0, v0, p, W
 
 
-def _gradcheck(mode, pinned=None, pinned_positions=None, x0_eps=1e-6, anchored=False):
+def _gradcheck(mode, pinned=None, pinned_positions=None, x0_eps=1e-6, anchored=False, drag=False):
     t, x0, v0, p, W = _setup()
+    if drag:  # c = 30 kg/m^3 (strong, so that the term matters at these speeds)
+        p.log10_drag = torch.tensor(1.5, dtype=torch.float64)
     kw = dict(num_frames=N, hessian=mode, tol=1e-13, pinned=pinned, pinned_positions=pinned_positions)
     if anchored:
         # stiff and weak anchors (w h^2 from 0 to 10), pulling towards points off the start state
@@ -47,6 +49,8 @@ def _gradcheck(mode, pinned=None, pinned_positions=None, x0_eps=1e-6, anchored=F
                   damping=p.damping, a_const=p.a_const, a_vert=p.a_vert)
     if anchored:
         leaves["anchor"] = p.anchor
+    if drag:
+        leaves["log10_drag"] = p.log10_drag
     for val in leaves.values():
         val.requires_grad_(True)
     loss().backward()
@@ -90,6 +94,14 @@ def test_rollout_gradients_vs_finite_differences_anchored():
 
 def test_rollout_gradients_vs_finite_differences_anchored_and_pinned():
     _gradcheck("projected", pinned=[0, 1, 2], anchored=True, x0_eps=1e-8)
+
+
+def test_rollout_gradients_vs_finite_differences_air_drag():
+    _gradcheck("projected", drag=True, x0_eps=1e-8)
+
+
+def test_rollout_gradients_vs_finite_differences_air_drag_pinned():
+    _gradcheck("projected", pinned=[0, 1, 2, 3, 4], drag=True, x0_eps=1e-8)
 
 
 def test_stiff_anchors_hold_vertices_like_pins_and_zero_anchors_change_nothing():

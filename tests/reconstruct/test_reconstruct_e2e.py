@@ -150,3 +150,27 @@ def test_without_pins_soft_anchors_hold_the_top_of_a_hanging_cloth(tiny_scene, t
     log_w = np.log10(params["anchor_stiffness"]).reshape(TINY.grid, TINY.grid)   # row 0: the truly held top
     assert scene.gravity is not None and 0 < len(held) < scene.template.num_vertices / 2
     assert log_w[:2].mean() > log_w[TINY.grid // 2:].mean() + 2   # held at the top, the lower half let go
+
+
+def test_air_drag_runs_through_the_pipeline_and_reports_its_learned_coefficient(tiny_scene, tmp_path):
+    """physics.air_drag > 0: the drag coefficient is learned (it moves from its prior) and params.json reports it."""
+    scene = tiny_scene.with_frames(4)
+    cfg = load_config(SaftConfig, None, TINY_CONFIG + ["texture.epochs=6", "shape.final_epochs=4",
+                                                       "shape.add_frame_every=2", "physics.air_drag=0.6",
+                                                       'physics.air_drag_where="always"', "shape.lr_air_drag=0.2"])
+    outcome = reconstruct(scene, cfg, tmp_path / "drag", quiet=True)
+    assert np.isfinite(outcome.positions).all()
+    drag = json.loads((tmp_path / "drag" / "params.json").read_text())["air_drag"]
+    assert 0.01 <= drag <= 5.0 and abs(drag - 0.6) > 1e-4
+
+
+def test_air_drag_where_swing_is_the_option_off_bit_for_bit_where_the_damping_stays(tiny_scene, tmp_path):
+    """The hanging cloth keeps the default damping (no swing): with physics.air_drag_where = "swing" the drag is
+    dropped before the first epoch and the run equals the option's off."""
+    scene = tiny_scene.with_frames(3)
+    base = TINY_CONFIG + ["texture.epochs=3", "shape.final_epochs=3"]
+    off = reconstruct(scene, load_config(SaftConfig, None, base), tmp_path / "off", quiet=True)
+    gated = reconstruct(scene, load_config(SaftConfig, None, base + ["physics.air_drag=0.6"]), tmp_path / "on",
+                        quiet=True)
+    assert np.array_equal(off.positions, gated.positions)
+    assert "air_drag" not in json.loads((tmp_path / "on" / "params.json").read_text())

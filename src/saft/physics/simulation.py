@@ -6,6 +6,9 @@ a_ext = a_const + a_vert[k] during the substeps from frame k to frame k + 1.
 
 Soft anchors (params.anchor = w, per unit mass): f += -m w (x - p), with h^2 m w on A's diagonal.
 
+Air drag (params.log10_drag = log10 c, optional; saft.physics.drag): f += F_drag(x, v), the pressure of still
+air along each triangle's normal at the substep's start, explicit (the system matrix is unchanged).
+
 Pinned vertices: their velocity is prescribed, v1_P = (target - x_P) / h, and the system is solved for the
 free DOFs only (rows/columns of P replaced by the identity); x1_P is set to the target exactly.
 
@@ -24,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from saft.physics.drag import drag_force, drag_vjp
 from saft.physics.energy import LN10, ElementEval  # noqa: F401 (ElementEval: tests patch it here)
 from saft.physics.finite import FiniteChecks, check_finite
 from saft.physics.kernels import StepKernels
@@ -53,6 +57,7 @@ class PhysicsParams:
     anchor: (V,) anchor stiffness per unit mass w (s^-2, >= 0), or None (no anchors): vertex i is pulled
             towards its anchor position p_i by the force -m_i w_i (x_i - p_i), a zero-length spring treated
             implicitly like the cloth's own forces (a soft pin; w h^2 >> 1 holds the vertex in place).
+    log10_drag: 0-dim log10 of the air drag coefficient c (kg/m^3, saft.physics.drag), or None (no drag).
     """
 
     log10_Y: torch.Tensor
@@ -62,6 +67,7 @@ class PhysicsParams:
     a_const: torch.Tensor
     a_vert: torch.Tensor | None = None
     anchor: torch.Tensor | None = None
+    log10_drag: torch.Tensor | None = None
 
     @classmethod
     def default(cls, num_frames: int | None = None, num_vertices: int | None = None, *, device=None,
@@ -83,9 +89,9 @@ class PhysicsParams:
         return p
 
     def tensors(self):
-        """The parameters in constructor order; the anchors only when there are any."""
+        """The parameters in constructor order; the anchors and the drag only when there are any."""
         base = (self.log10_Y, self.log10_B, self.log10_S, self.damping, self.a_const, self.a_vert)
-        return base if self.anchor is None else base + (self.anchor,)
+        return base + tuple(t for t in (self.anchor, self.log10_drag) if t is not None)
 
 
 class _Sim:
@@ -207,7 +213,7 @@ def _one_cpu_thread(fn):
 class _RolloutFn(torch.autograd.Function):
     @staticmethod
     @_one_cpu_thread
-    def forward(ctx, sim: _Sim, x0, v0, lY, lB, lS, damping, a_const, a_vert, anchor):
+    def forward(ctx, sim: _Sim, x0, v0, lY, lB, lS, damping, a_const, a_vert, anchor, l_drag):
         t = sim.t
         Y, B, S = (10.0 ** float(lY)), (10.0 ** float(lB)), (10.0 ** float(lS))
         d = float(damping)
@@ -233,6 +239,9 @@ class _RolloutFn(torch.autograd.Function):
         if anchor is not None:
             check_finite(anchor, "input anchor", 0, 0)
             anchor_at = sim.anchor_positions
+        drag_c = None if l_drag is None else 10.0 ** l_drag.detach()
+        if drag_c is not None:
+            check_finite(l_drag, "input log10_drag", 0, 0)
         checks = FiniteChecks(x0.device)  # on a GPU read once per frame
         for k in range(N - 1):
             a = a_const if a_vert is None else a_const + a_vert[k]
@@ -246,6 +255,8 @@ class _RolloutFn(torch.autograd.Function):
                 if anchor_mass is not None:
                     gradE = gradE + anchor_mass * (x - anchor_at)
                     A = sim.anchor_system(A, anchor_mass)
+                if drag_c is not None:  # explicit: at the substep's start (x, v)
+                    gradE = gradE - drag_force(x, v, t.triangles, drag_c)
                 b = (m3 * vd + h * (m3 * a - gradE)).reshape(-1)
                 if pinned is not None:
                     tgt = sim.target(x0, k, s)
@@ -276,16 +287,17 @@ class _RolloutFn(torch.autograd.Function):
         ctx.A_saved = A_saved if keep_A else None
         empty = x0.new_empty(0)
         ctx.save_for_backward(x0, saved, lY, lB, lS, damping, a_const, a_vert if a_vert is not None else empty,
-                              anchor if anchor is not None else empty)
+                              anchor if anchor is not None else empty, l_drag if l_drag is not None else empty)
         ctx.has_avert = a_vert is not None
         ctx.has_anchor = anchor is not None
+        ctx.has_drag = l_drag is not None
         return positions
 
     @staticmethod
     @_one_cpu_thread
     def backward(ctx, grad_pos):
         sim: _Sim = ctx.sim
-        x0, saved, lY, lB, lS, damping, a_const, a_vert, anchor = ctx.saved_tensors
+        x0, saved, lY, lB, lS, damping, a_const, a_vert, anchor, l_drag = ctx.saved_tensors
         t = sim.t
         Y, B, S = (10.0 ** float(lY)), (10.0 ** float(lB)), (10.0 ** float(lS))
         d = float(damping)
@@ -307,6 +319,8 @@ class _RolloutFn(torch.autograd.Function):
         lam_guess = torch.zeros(3 * V, dtype=x0.dtype, device=x0.device)
         anchor_mass = m3 * anchor[:, None] if ctx.has_anchor else None
         g_anchor = torch.zeros(V, 3, dtype=x0.dtype, device=x0.device) if ctx.has_anchor else None
+        drag_c = 10.0 ** l_drag if ctx.has_drag else None
+        g_drag = torch.zeros_like(gY)
         checks = FiniteChecks(x0.device)
         for k in range(N - 2, -1, -1):
             for s in range(ns - 1, -1, -1):
@@ -344,6 +358,12 @@ class _RolloutFn(torch.autograd.Function):
                 gB += dB
                 gS += dS
                 gv = d * mlam
+                if drag_c is not None:
+                    # lam.(b - A v1) holds h lam.F_drag(x, v): its x, v and c derivatives
+                    dx, dv, dc = drag_vjp(x, v, t.triangles, drag_c, lamV)
+                    gx = gx + h * dx
+                    gv = gv + h * dv
+                    g_drag += h * dc
                 checks.check(gx, "position adjoint", k, s)
             checks.flush()
             gx = gx + grad_pos[k]
@@ -368,6 +388,7 @@ class _RolloutFn(torch.autograd.Function):
             g_const,
             g_a if ctx.has_avert else None,
             g_anchor.sum(dim=1) if ctx.has_anchor else None,
+            g_drag * drag_c * LN10 if ctx.has_drag else None,  # dc/dlog10 c = c ln10
         )
 
 
@@ -449,6 +470,11 @@ def rollout(
             raise ValueError(f"anchor_positions must have shape ({t.num_vertices}, 3), "
                              f"got {tuple(anchor_positions.shape)}")
         anchor_positions = anchor_positions.detach()
+    l_drag = params.log10_drag
+    if l_drag is not None:
+        if t.triangles is None:
+            raise ValueError("air drag needs the topology's triangles (ClothTopology.from_quads)")
+        l_drag = torch.as_tensor(l_drag).to(device=dev, dtype=dt).reshape(())
     sim = _Sim(t, num_frames, substeps, frame_dt, pinned, pinned_positions, hessian, solver, tol, compile,
                kernels, anchor_positions if anchor is not None else None)
     sim.stats_out = stats
@@ -460,7 +486,7 @@ def rollout(
 
     out = _RolloutFn.apply(
         sim, x0, v0, sc(params.log10_Y), sc(params.log10_B), sc(params.log10_S), sc(params.damping),
-        torch.as_tensor(params.a_const).to(**f).reshape(3), a_vert, anchor,
+        torch.as_tensor(params.a_const).to(**f).reshape(3), a_vert, anchor, l_drag,
     )
     if stats is not None:
         stats.update(sim.stats.as_dict())

@@ -36,6 +36,8 @@ class ClothTopology:
       is_bend   (H,) bool      theta0 < 45 deg (bending, stiffness B), else shearing (stiffness S)
       bend_w    (H,)           1.0 for bending hinges, 0.0 for shearing hinges (same as is_bend, float)
       mass      (V,)           lumped masses: each triangle gives area/3 to its corners, times density
+      triangles (T, 3) int64   the triangulation (a, b, c), (a, c, d) of the quads (air drag; None when
+                               the topology was built without it)
     Host (numpy) data describing the scalar CSR pattern of the symmetric (3V x 3V) system matrix:
       csr_indptr, csr_indices  int32/int64 numpy arrays (rows sorted; the pattern is symmetric)
       spring_idx (4*9*E,), hinge_idx (9*9*H,), diag_idx (3V,): positions in the CSR data array of every
@@ -75,6 +77,7 @@ class ClothTopology:
     diag_up_idx: torch.Tensor = field(repr=False, default=None)
     spring_up_rows: torch.Tensor = field(repr=False, default=None)
     hinge_up_rows: torch.Tensor = field(repr=False, default=None)
+    triangles: torch.Tensor | None = field(repr=False, default=None)
 
     def __post_init__(self):
         if self.hinge_idx_outer is None:
@@ -172,6 +175,7 @@ class ClothTopology:
             diag_idx=torch.as_tensor(diag_idx, **i),
             scatter_idx=torch.as_tensor(np.concatenate([e[:, 0], e[:, 1], hinges[:, 0], hinges[:, 1], hinges[:, 2]]), **i),
             template=torch.as_tensor(verts, **f),
+            triangles=torch.as_tensor(tris, **i),
         )
 
     @classmethod
@@ -186,6 +190,8 @@ class ClothTopology:
         for name in ("edges", "hinges", "is_bend", "spring_idx", "hinge_idx", "diag_idx", "scatter_idx",
                      "hinge_idx_outer", *_FAST_MAP_FIELDS):
             changes[name] = getattr(self, name).to(device=device)
+        if self.triangles is not None:
+            changes["triangles"] = self.triangles.to(device=device)
         for name in ("rest_len", "rest_angle", "bend_w", "mass", "template"):
             changes[name] = getattr(self, name).to(device=device, dtype=dtype)
         return replace(self, **changes)

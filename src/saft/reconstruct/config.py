@@ -74,6 +74,16 @@ class PhysicsConfig:
     # keeps the default on the other pinned independent scenes, the appearance clips, R1 and the demo (BENCHMARKS.md,
     # "The one-corner scene: the damping brakes the swing"). The default since 2026-11-27.
     swing_damping: float = 0.99
+    # Air drag of still air on the cloth (saft.physics.drag; issue 29, not in the paper): the initial coefficient
+    # c = rho_air C_d / 2 in kg/m^3 of the pressure -c A |u| u n on each triangle (0 = off). The prior for a
+    # flat plate broadside is ~0.6 (rho_air 1.2, C_d 1); c is then learned in log10 (shape.lr_air_drag) within
+    # air_drag_range. Only c / density matters, like the stiffnesses.
+    air_drag: float = 0.0
+    air_drag_range: tuple[float, float] = (0.01, 5.0)
+    # Where the drag is kept (saft.reconstruct.air_drag): "swing" only where the swing trial picks
+    # swing_damping (a cloth swinging from one corner: Newton one corner 12.35 -> 9.94), "always" everywhere
+    # (the wind-driven Newton scenes lost: gust 1.13 -> 2.86, fold +16 %).
+    air_drag_where: Literal["swing", "always"] = "swing"
     log10_Y_init: float = DEFAULT_LOG10_Y
     log10_B_init: float = DEFAULT_LOG10_B
     log10_S_init: float = DEFAULT_LOG10_S
@@ -175,6 +185,7 @@ class ShapeConfig:
     hard_coverage: bool = False
     optimize_stiffness: bool = True
     lr_stiffness: float = 2e-2
+    lr_air_drag: float = 2e-2             # of log10 c, the air drag coefficient (physics.air_drag > 0; 0 = held)
     lr_const_accel: float = 1e-1
     lr_vertex_accel: float = 2e-1
     # Learning rate of a per-frame affine acceleration field over the template, added to the per-vertex

@@ -28,6 +28,7 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "physics.density": (0, INF, False),
     "physics.damping": (0, 1, False),
     "physics.swing_damping": (0, 1, True),
+    "physics.air_drag": (0, INF, True),
     "shape.initial_frames": (1, INF, True),
     "shape.add_frame_every": (1, INF, True),
     "shape.final_epochs": (0, 1_000_000, True),
@@ -40,6 +41,7 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "shape.force_along_weight": (0, 1, True),
     "shape.force_along_weight_pinned": (0, 1, True),
     "shape.lr_stiffness": (0, INF, True),
+    "shape.lr_air_drag": (0, INF, True),
     "shape.lr_const_accel": (0, INF, True),
     "shape.lr_vertex_accel": (0, INF, True),
     "shape.lr_field_accel": (0, INF, True),
@@ -106,6 +108,11 @@ def check_config_ranges(cfg, where: str = "config") -> None:
         if not low_ok or value > hi:   # NaN fails low_ok
             bracket = "[" if lo_inclusive else "("
             raise SaftInputError(where, f"{key} must lie in {bracket}{lo:g}, {hi:g}], got {value!r}")
+    drag, (lo, hi) = _get(cfg, "physics.air_drag"), _get(cfg, "physics.air_drag_range") or (None, None)
+    if lo is not None and not (0 < lo <= hi < INF):
+        raise SaftInputError(where, f"physics.air_drag_range must be [low, high] with 0 < low <= high, got [{lo!r}, {hi!r}]")
+    if drag and lo is not None and not lo <= drag <= hi:
+        raise SaftInputError(where, f"physics.air_drag = {drag!r} lies outside physics.air_drag_range [{lo:g}, {hi:g}]")
     for init_key, range_key in INIT_IN_RANGE:
         lo, hi = _get(cfg, range_key) or (None, None)
         init = _get(cfg, init_key)

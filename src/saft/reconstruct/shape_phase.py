@@ -39,7 +39,7 @@ from saft.reconstruct.light import initial_light, plain_cloth
 from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_loss
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
 from saft.reconstruct.step_guard import StepGuard
-from saft.reconstruct.swing_damping import run_damping
+from saft.reconstruct.air_drag import run_damping_and_drag
 from saft.reconstruct.tracks import VertexTracks, compute_vertex_tracks, hidden_vertices, track_loss
 from saft.reconstruct.window_hold import outside_window, per_frame, restore_outside_window
 
@@ -62,6 +62,7 @@ class ShapeParams:
     light: torch.Tensor | None = None         # (3,): first-order light vector of the relative shading (render.shading)
     anchor_log10: torch.Tensor | None = None  # (V,): log10 of the soft anchors' stiffness per unit mass (s^-2)
     v0_field: torch.Tensor | None = None      # (4, 3): the affine velocity at frame 0 (initial_velocity.py)
+    log10_drag: torch.Tensor | None = None    # 0-dim: log10 of the air drag coefficient (physics.air_drag > 0)
 
     def tensors(self) -> dict[str, torch.Tensor]:
         t = {"log10_Y": self.log10_Y, "log10_B": self.log10_B, "log10_S": self.log10_S,
@@ -74,6 +75,8 @@ class ShapeParams:
             t["anchor_log10"] = self.anchor_log10
         if self.v0_field is not None:
             t["v0_field"] = self.v0_field
+        if self.log10_drag is not None:
+            t["log10_drag"] = self.log10_drag
         return t
 
     def velocity(self, basis: torch.Tensor) -> torch.Tensor | None:   # (V, 3) at frame 0, or None (at rest)
@@ -143,6 +146,8 @@ def _make_optimizer(params: ShapeParams, cfg: ShapeConfig) -> ClippedAdam:
         specs.append(ParamSpec("anchor_log10", params.anchor_log10, cfg.lr_anchor))
     if params.v0_field is not None:
         specs.append(ParamSpec("v0_field", params.v0_field, cfg.lr_v0))
+    if params.log10_drag is not None and cfg.lr_air_drag > 0:   # a held drag (lr 0) is never stepped
+        specs.append(ParamSpec("log10_drag", params.log10_drag, cfg.lr_air_drag))
     if cfg.optimize_stiffness:
         specs += [ParamSpec(n, getattr(params, n), cfg.lr_stiffness) for n in ("log10_Y", "log10_B", "log10_S")]
     return ClippedAdam(specs, clip=cfg.grad_clip, quantile=cfg.autoclip_quantile, history=cfg.autoclip_history,
@@ -186,12 +191,14 @@ def new_shape_state(num_frames: int, num_vertices: int, gravity: np.ndarray, phy
         light=initial_light(cfg, dtype, device, up),
         anchor_log10=(torch.full((num_vertices,), float(cfg.anchor_log10_init), dtype=dtype, device=device,
                                  requires_grad=True) if anchors else None),
-        v0_field=torch.zeros(4, 3, dtype=dtype, device=device, requires_grad=True) if cfg.lr_v0 > 0 else None)
+        v0_field=torch.zeros(4, 3, dtype=dtype, device=device, requires_grad=True) if cfg.lr_v0 > 0 else None,
+        log10_drag=(torch.tensor(math.log10(phys.air_drag), dtype=dtype, device=device, requires_grad=True)
+                    if phys.air_drag > 0 else None))
     return ShapeState(params, _make_optimizer(params, cfg), _make_guard(cfg))
 
 
 def restore_shape_state(saved: dict, cfg: ShapeConfig, device) -> ShapeState:
-    always_learned = ("const_accel", "vertex_accel", "field_accel", "light", "anchor_log10", "v0_field")
+    always_learned = ("const_accel", "vertex_accel", "field_accel", "light", "anchor_log10", "v0_field", "log10_drag")
     p = {k: v.to(device).requires_grad_(k in always_learned or cfg.optimize_stiffness) for k, v in saved["params"].items()}
     params = ShapeParams(**p)
     state = ShapeState(params, _make_optimizer(params, cfg), _make_guard(cfg), saved["epoch"],
@@ -264,7 +271,8 @@ class ShapeSimulator:
         damping = torch.tensor(self.damping, dtype=self.template.dtype, device=self.template.device)
         anchor = None if params.anchor_log10 is None else 10.0 ** params.anchor_log10
         return PhysicsParams(log10_Y=params.log10_Y, log10_B=params.log10_B, log10_S=params.log10_S,
-                             damping=damping, a_const=params.const_accel, a_vert=a_vert, anchor=anchor)
+                             damping=damping, a_const=params.const_accel, a_vert=a_vert, anchor=anchor,
+                             log10_drag=params.log10_drag)
 
     def held_share(self, params: ShapeParams, floor: float) -> torch.Tensor:
         """R_A: the mean over vertices of how far each soft anchor holds its vertex, linear in log10 w from
@@ -426,7 +434,7 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
     n_frames = ctx.target_rgb.shape[0]
     sched = FrameSchedule.restore(n_frames, cfg, state.schedule, state.epoch)
     ranges = {"log10_Y": phys.log10_Y_range, "log10_B": phys.log10_B_range, "log10_S": phys.log10_S_range,
-              "anchor_log10": cfg.anchor_log10_range}
+              "anchor_log10": cfg.anchor_log10_range, "log10_drag": tuple(map(math.log10, phys.air_drag_range))}
     with record_function("saft.shape.tracks"):
         tracks = shape_tracks(ctx, cfg, texture, sim.template)
         tracks = plain_cloth(ctx, state, cfg, texture, sim.template, tracks)
@@ -439,7 +447,7 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
             start_velocity(state.params, state.optimizer, sim, tracks, ctx.camera)
     if phys.rest_shape == "moving":             # flat exactly when v0 is learned (so a resumed run agrees)
         sim.use_rest_shape("flat" if state.params.v0_field is not None else "template")
-    state.damping = sim.damping = run_damping(state, sim, tracks, ctx.camera, phys)   # swing_damping
+    state.damping = sim.damping = run_damping_and_drag(state, sim, tracks, ctx.camera, phys)   # and air_drag_where
     if cfg.window > 0 and state.states is None:
         zeros = sim.template.new_zeros((n_frames,) + tuple(sim.template.shape))
         state.states = FrameStates(zeros.clone(), zeros.clone(), 1)

@@ -1,0 +1,64 @@
+"""Aerodynamic drag of still air on the cloth (issue 29; not in the paper): pressure along each triangle's normal.
+
+Each triangle (area A, unit normal n, velocity u = n . (v_a + v_b + v_c) / 3 along its normal, the air at rest)
+feels the force  F = -c A |u| u n,  c = rho_air C_d / 2 (kg/m^3; a flat plate broadside: rho_air 1.2,
+C_d ~ 1 to 2, so c ~ 0.6 to 1.2), shared equally by its three corners. With the unnormalised normal
+N = (b - a) x (c - a) = 2 A n this is  F = -c/2 N |N.w| (N.w) / |N|^2,  w the mean corner velocity: no square
+root, smooth wherever the triangle has an area. Only the normal (pressure) part: skin friction along the cloth
+is orders of magnitude smaller for cloth-sized speeds, and wind is the learned accelerations' job.
+
+The rollout (simulation.py) adds it EXPLICITLY: the force of substep k is evaluated at the substep's start
+(x, v) and enters the right-hand side of the implicit step like the external accelerations. So the solver,
+its system matrix and the numba element kernels with their hand-written adjoints are unchanged, and the term
+is plain torch, one code path on every device. The adjoint needs the vector-Jacobian product of the force with
+the step's adjoint (``drag_vjp``, in closed form: autograd on these ops cost ~1.5 ms a substep). Explicit is stable here: the linearised
+rate 2 c |u| / (3 rho_s) per unit mass (rho_s the areal density) times the substep h stays far below 2
+(c = 1, rho_s = 0.1 kg/m^2, |u| = 2 m/s, h = 1/120 s: 0.1).
+"""
+
+from __future__ import annotations
+
+import torch
+
+
+def drag_force(x: torch.Tensor, v: torch.Tensor, triangles: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
+    """(V, 3) drag force on every vertex at positions x, velocities v (V, 3); c: the coefficient (0-dim, kg/m^3)."""
+    a, b, d = x[triangles[:, 0]], x[triangles[:, 1]], x[triangles[:, 2]]
+    N = torch.linalg.cross(b - a, d - a)                                   # (T, 3), |N| = 2 area
+    w = (v[triangles[:, 0]] + v[triangles[:, 1]] + v[triangles[:, 2]]) / 3.0
+    un = (N * w).sum(dim=1)                                                # |N| u
+    nn = (N * N).sum(dim=1).clamp_min(torch.finfo(x.dtype).tiny)
+    f = (-0.5 * c) * N * (un.abs() * un / nn)[:, None]                     # (T, 3), per triangle
+    share = (f / 3.0).repeat_interleave(3, dim=0)
+    return torch.zeros_like(x).index_add_(0, triangles.reshape(-1), share)
+
+
+def drag_vjp(x: torch.Tensor, v: torch.Tensor, triangles: torch.Tensor, c: torch.Tensor,
+             lam: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """d/dx, d/dv, d/dc of lam . drag_force(x, v, c): ((V, 3), (V, 3), 0-dim), in closed form.
+
+    Per triangle, with L = lam's corner mean, p = L.N, un = N.w, s = |un| un, nn = N.N, the term is
+    -c/2 p s / nn: d/dw = -c p |un| / nn N; d/dN = -c/2 (s / nn L + 2 p |un| / nn w - 2 p s / nn^2 N); and
+    N = e1 x e2 (e1 = b - a, e2 = d - a) gives d/de1 = e2 x gN, d/de2 = gN x e1."""
+    i0, i1, i2 = triangles[:, 0], triangles[:, 1], triangles[:, 2]
+    e1, e2 = x[i1] - x[i0], x[i2] - x[i0]
+    N = torch.linalg.cross(e1, e2)
+    w = (v[i0] + v[i1] + v[i2]) / 3.0
+    L = (lam[i0] + lam[i1] + lam[i2]) / 3.0
+    un = (N * w).sum(dim=1, keepdim=True)
+    nn = (N * N).sum(dim=1, keepdim=True).clamp_min(torch.finfo(x.dtype).tiny)
+    p = (L * N).sum(dim=1, keepdim=True)
+    au = un.abs()
+    s = au * un
+    gc = (-0.5 * (p * s / nn)).sum()
+    gw = (-c * p * au / nn) * N / 3.0                                   # per corner
+    gN = (-0.5 * c) * (s / nn * L + (2.0 * p * au / nn) * w - (2.0 * p * s / (nn * nn)) * N)
+    ge1 = torch.linalg.cross(e2, gN)
+    ge2 = torch.linalg.cross(gN, e1)
+    idx = triangles.reshape(-1)
+    gv = torch.zeros_like(x).index_add_(0, idx, gw.repeat_interleave(3, dim=0))
+    gx = torch.zeros_like(x).index_add_(0, idx, torch.stack([-ge1 - ge2, ge1, ge2], dim=1).reshape(-1, 3))
+    return gx, gv, gc
+
+
+__all__ = ["drag_force", "drag_vjp"]
