@@ -1,4 +1,4 @@
-"""physics.air_drag in the shape phase: off by default, learned in log10 where on, checkpointed, in the rollout."""
+"""physics.air_drag in the shape phase: off at 0, learned in log10 where on, checkpointed, in the rollout."""
 
 import math
 
@@ -21,8 +21,9 @@ def _setup(phys, cfg=None, frames=6):
     return sim, state
 
 
-def test_off_by_default_and_learned_from_the_prior_where_on():
-    _, off = _setup(PhysicsConfig())
+def test_off_at_zero_and_learned_from_the_prior_where_on():
+    assert PhysicsConfig().air_drag == 0.6   # the default: on, then kept or dropped by air_drag_where
+    _, off = _setup(PhysicsConfig(air_drag=0.0))
     assert off.params.log10_drag is None and "log10_drag" not in off.params.tensors()
     assert "log10_drag" not in off.optimizer.specs
     _, on = _setup(PhysicsConfig(air_drag=0.6))
@@ -36,7 +37,7 @@ def test_off_by_default_and_learned_from_the_prior_where_on():
 
 
 def test_the_drag_reaches_the_rollout_and_gets_a_gradient():
-    sim, off = _setup(PhysicsConfig())
+    sim, off = _setup(PhysicsConfig(air_drag=0.0))
     _, on = _setup(PhysicsConfig(air_drag=2.0))
     x_off = sim.simulate(off.params, 6).detach()
     x_on = sim.simulate(on.params, 6)
@@ -82,7 +83,7 @@ def test_the_swing_gate_drops_the_drag_where_the_default_damping_is_kept(monkeyp
         assert ("log10_drag" in state.optimizer.specs) == kept
         assert ("log10_drag" in state.state_dict()["params"]) == kept
     # off (air_drag = 0): nothing to drop
-    phys = PhysicsConfig()
+    phys = PhysicsConfig(air_drag=0.0)
     sim, state = _setup(phys)
     monkeypatch.setattr(ad, "run_damping", fake_run_damping(0.9))
     assert ad.run_damping_and_drag(state, sim, None, None, phys) == 0.9 and state.params.log10_drag is None

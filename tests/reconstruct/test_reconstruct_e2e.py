@@ -169,8 +169,8 @@ def test_air_drag_where_swing_is_the_option_off_bit_for_bit_where_the_damping_st
     dropped before the first epoch and the run equals the option's off."""
     scene = tiny_scene.with_frames(3)
     base = TINY_CONFIG + ["texture.epochs=3", "shape.final_epochs=3"]
-    off = reconstruct(scene, load_config(SaftConfig, None, base), tmp_path / "off", quiet=True)
-    gated = reconstruct(scene, load_config(SaftConfig, None, base + ["physics.air_drag=0.6"]), tmp_path / "on",
-                        quiet=True)
+    off = reconstruct(scene, load_config(SaftConfig, None, base + ["physics.air_drag=0"]), tmp_path / "off",
+                      quiet=True)
+    gated = reconstruct(scene, load_config(SaftConfig, None, base), tmp_path / "on", quiet=True)   # the default
     assert np.array_equal(off.positions, gated.positions)
     assert "air_drag" not in json.loads((tmp_path / "on" / "params.json").read_text())
