@@ -59,6 +59,18 @@ class AppearanceConfig:
     lr_normals: float = 0.01
     lambda_normals: float = 1e-3
     lambda_metallic_l1: float = 0.0      # maps="guided": area-weighted mean metallic (sparsity prior)
+    # maps="guided": each cluster gets a bright metal colour of its own (brightest channel >= 0.5, as any
+    # real metal's F0), the base colour (1 − m)·diffuse + m·colour (appearance.metal: the lamé's gold threads,
+    # whose frame-0 radiance divided as a diffuse is darker than any metal); such a cluster's metallic moves
+    # metal_rate times as fast and is priced by lambda_metal_blend × area × m(1 − m) (metal or not) instead
+    # of the sparsity prior. Off (BENCHMARKS "Metals are bright"; issue 28)
+    metal_colour: bool = False
+    lambda_metal_blend: float = 0.01
+    metal_rate: float = 3.0
+    # metal_colour: > 0: only the clusters whose highlights over the frames keep their own colour (score >=
+    # metal_gate, appearance.metal_gate: a metal's highlight has its F0's colour, a dielectric's the light's)
+    # get a metal colour; the others keep the default (no colour, the sparsity prior). 0 = every cluster
+    metal_gate: float = 0.0
     # maps="guided": mean squared colour of the log-gain grid (each cell's channels minus their mean), a
     # prior that ties the gain's colour to grey so the light's colour goes to the env map (0 = off)
     lambda_gain_chroma: float = 0.0
@@ -136,6 +148,8 @@ class AppearanceConfig:
             bad("frame_specular", "must be 0 (off) or >= 2 frames")
         if self.normal_grid < 0 or self.normal_keys < 0 or self.lr_normals < 0 or self.lambda_normals < 0:
             bad("normal_grid", "normal_grid, normal_keys, lr_normals and lambda_normals must be >= 0")
+        if self.metal_rate <= 0 or self.lambda_metal_blend < 0 or not (0 <= self.metal_gate <= 1):
+            bad("metal_rate", "metal_rate must be > 0, lambda_metal_blend >= 0 and metal_gate lie in [0, 1]")
         if self.gain_grid < 1 or self.clusters < 1:
             bad("clusters", "gain_grid and clusters must be >= 1")
         if self.env_levels < 1 or (self.env_height >> (self.env_levels - 1)) < 1:

@@ -36,11 +36,12 @@ def cluster_evidence(model, env: torch.Tensor, render: Callable, frames: list[in
     With band, an undetermined cluster gets the middle of the roughness range the frames do not rule out
     (roughness_range in its dict) instead of 1.
     """
-    maps = model(env)
+    maps = model.base_maps(env)   # the dielectric diffuse; model.mix_metal adds a metal colour (appearance.metal)
     vals = {k: v.detach().clone() for k, v in model.cluster_values().items()}
 
     def total(rough, metal) -> float:
-        return sum(float(loss(f, render(f, maps["diffuse"], rough, metal, env, spp, 7919 + f))) for f in frames)
+        diffuse = model.mix_metal(maps["diffuse"], metal)
+        return sum(float(loss(f, render(f, diffuse, rough, metal, env, spp, 7919 + f))) for f in frames)
 
     fitted = total(maps["roughness"], maps["metallic"])
     out = []
@@ -84,7 +85,7 @@ def lowest_allowed(cost: Callable[[float], float], limit: float, ladder=ROUGHNES
 
 def _roughness_bands(model, env, total: Callable, out: list[dict], threshold: float) -> None:
     """Each undetermined cluster to the middle of the roughness range its frames allow (see the module)."""
-    maps = model(env)
+    maps = model.base_maps(env)
     matte = total(maps["roughness"], maps["metallic"])
     for row in out:
         if row["determined"]:

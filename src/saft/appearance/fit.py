@@ -19,6 +19,7 @@ from saft.appearance.evidence import cluster_evidence, undetermined_note
 from saft.appearance.frame_specular import FRAME_GRID, FrameStack, frame_specular
 from saft.appearance.guided import GuidedMaps
 from saft.appearance.irradiance import FrameZeroIrradiance, IrradianceMaps
+from saft.appearance.metal_gate import metal_scores
 from saft.appearance.mitsuba_backend import load_mitsuba
 from saft.appearance.normals import NormalCorrection
 from saft.appearance.tolerant import blurred_linearised_mse
@@ -188,6 +189,9 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
     if isinstance(model, GuidedMaps) and cfg.detail_trust > 0:
         left_out = untrusted_detail_frames(model, verts, triangles, uvs, camera, rgb, mask, cfg.texture_smoothing,
                                            cfg.detail_trust)
+    if isinstance(model, GuidedMaps) and cfg.metal_colour:   # a metal colour per cluster (appearance.metal)
+        scores = metal_scores(model, verts, triangles, uvs, camera, rgb, mask) if cfg.metal_gate > 0 else None
+        model.use_metal_colour(cfg.metal_rate, None if scores is None else scores >= cfg.metal_gate)   # NaN: no
     untrusted = set(left_out or ())
     stack = None   # the frames in texture space that measure frame 0's specular (appearance.frame_specular)
     if isinstance(model, IrradianceMaps) and cfg.frame_specular > 1:
@@ -280,7 +284,7 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
             dropped = torch.autograd.grad(maps["diffuse"], model.detail_logit, dropped, retain_graph=True)[0]
         reg = cfg.lambda_env_l1 * env_amplitude(env_eff) + cfg.lambda_env_smooth * env_smoothness(env_eff)
         if isinstance(model, GuidedMaps):
-            reg = reg + cfg.lambda_metallic_l1 * model.metallic_l1()
+            reg = reg + model.metal_prior(cfg.lambda_metallic_l1, cfg.lambda_metal_blend)
             if cfg.lambda_gain_chroma > 0:
                 reg = reg + cfg.lambda_gain_chroma * model.gain_chroma()
         if normals is not None:
@@ -329,6 +333,10 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
                                     lambda f, img: masked_linearised_srgb_mse(img, lin_t[f], slope_t[f], mask_t[f]),
                                     spp=cfg.evidence_spp, threshold=cfg.evidence_threshold,
                                     band=cfg.undetermined_roughness == "band")
+        if model.metal is not None:   # each cluster's metal colour, and the gate's verdict
+            for row, c, a in zip(evidence, model.metal.colours().tolist(), model.metal.allowed.tolist()):
+                row.update(metal_colour=c, metal_allowed=bool(a),
+                           **({} if scores is None else {"highlight_colour": float(scores[row["cluster"]])}))
     final_state = state(cfg.epochs)
     if checkpoint is not None:
         checkpoint(final_state)

@@ -178,7 +178,7 @@ class IrradianceMaps(GuidedMaps):
         s = Fnn.interpolate(self.specular0, size=(self.size, self.size), mode="bilinear", align_corners=False)
         return torch.maximum(t - s[0].permute(1, 2, 0), SPECULAR_FLOOR * t)
 
-    def forward(self, env: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+    def base_maps(self, env: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         if env is None:
             raise ValueError("IrradianceMaps needs the env map: model(env)")
         diffuse = (math.pi * self.diffuse_texture() / self.shading(env)).clamp(0.0, 1.0)

@@ -1,0 +1,80 @@
+"""Which clusters may be metal (``appearance.metal_gate``): the colour of their highlights (issue 28).
+
+A dielectric's highlight has the light's colour, a metal's the colour of its F0, which is also the colour
+the metal shows everywhere else (its whole radiance is specular). So a cluster whose highlights over the
+frames are coloured like its own texture may be metal; one whose highlights shift its colour towards the
+light's (the satin's white streak on red) shows a dielectric's highlight and keeps the default treatment
+(no metal colour, the sparsity prior). The frames are sampled into texture space through their meshes
+(appearance.frame_specular.FrameStack) on a grid of GATE_GRID texels.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from saft.appearance.frame_specular import FrameStack
+
+# the texel grid of the gate's frames: the lamé's threads are 3/128 of the cloth wide, 3 texels at 128 (the
+# benchmark's 320x240 cloth spans about 150 pixels: about one pixel per texel)
+GATE_GRID = 128
+GATE_FRAMES = 32        # frames sampled (evenly spaced, frame 0 among them)
+CLIPPED = 0.95          # linear radiance of a channel at which a sample counts as clipped (sRGB 0.98)
+
+
+def chromaticity(rgb: np.ndarray) -> np.ndarray:
+    """(…, 3) rgb / (r + g + b): the colour without its brightness."""
+    rgb = np.maximum(np.asarray(rgb, dtype=np.float64), 0.0)
+    return rgb / np.maximum(rgb.sum(-1, keepdims=True), 1e-9)
+
+
+def highlight_colour(radiance: np.ndarray, seen: np.ndarray, labels: np.ndarray, k: int, min_seen: int = 3,
+                     min_peak: float = 1.5) -> np.ndarray:
+    """(K,) per cluster, how much its highlights keep its own colour: 1 a metal's, 0 a dielectric's under grey
+    light, NaN where nothing tells (no highlight, or a grey cluster).
+
+    radiance (F, G, G, 3) linear, seen (F, G, G) bool: the frames in texture space (frame_specular.FrameStack);
+    labels (G, G) the texels' clusters. At each texel seen in at least min_seen frames, the brightest frame's
+    excess over the per-channel median of its frames is a highlight where it is at least min_peak times as
+    bright as the median. A Lambertian texel brighter by its shading adds its own colour (no highlight by
+    this test unless its shading changes that much, and then a colour shift of 0, like a metal); a
+    dielectric's highlight adds the light's colour, a metal's its F0's. Per texel the shift |chroma(excess) −
+    chroma(median)| is compared with the median's own colourfulness |chroma(median) − grey|; the cluster's
+    score is 1 − Σ w·shift / Σ w·colourfulness, w the excess's brightness."""
+    radiance = np.asarray(radiance, dtype=np.float64)
+    seen = seen & (radiance.max(-1) < CLIPPED)   # a clipped highlight is white whatever its colour
+    rad = np.where(seen[..., None], radiance, np.nan)
+    counted = seen.sum(0) >= min_seen
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)   # texels no frame sees
+        med = np.nanmedian(rad, axis=0)                                              # (G, G, 3)
+        lum = np.where(seen, np.nansum(rad, -1), -np.inf)                            # (F, G, G)
+    top = np.take_along_axis(np.nan_to_num(rad), lum.argmax(0)[None, ..., None], 0)[0]
+    med = np.nan_to_num(med)
+    excess = np.maximum(top - med, 0.0)
+    peak = top.sum(-1) / np.maximum(med.sum(-1), 1e-9)
+    use = counted & (peak >= min_peak)
+    grey = np.full(3, 1 / 3)
+    shift = np.linalg.norm(chromaticity(excess) - chromaticity(med), axis=-1)
+    colourful = np.linalg.norm(chromaticity(med) - grey, axis=-1)
+    w = excess.sum(-1) * use
+    score = np.full(k, np.nan)
+    for c in range(k):
+        wc = w * (labels == c)
+        if wc.sum() <= 0 or (wc * colourful).sum() / wc.sum() < 0.05:   # no highlight, or a grey cluster
+            continue
+        score[c] = 1.0 - (wc * shift).sum() / (wc * colourful).sum()
+    return score
+
+
+def metal_scores(model, vertices, triangles, uvs, camera, rgb_srgb, mask, grid: int = GATE_GRID,
+                 frames: int = GATE_FRAMES) -> np.ndarray:
+    """(K,) highlight_colour of a GuidedMaps model's clusters from the video (NaN: nothing tells)."""
+    n = len(vertices)
+    picked = np.linspace(0, n - 1, min(frames, n)).round().astype(int)
+    stack = FrameStack(vertices, triangles, uvs, camera, rgb_srgb, mask, grid, (4, 8), picked)
+    members = model.members.cpu().numpy()
+    idx = ((np.arange(grid) + 0.5) * members.shape[-1] / grid).astype(int)
+    labels = members.argmax(0)[np.ix_(idx, idx)]
+    return highlight_colour(stack.radiance.numpy(), stack.seen.numpy(), labels, model.num_clusters)
