@@ -4,9 +4,10 @@ import numpy as np
 import pytest
 import torch
 
-from saft.reconstruct.tracks import (VertexTracks, noise_level, project, starts_moving, texture_confidence,
+from saft.reconstruct.tracks import (VertexTracks, noise_level, project, texture_confidence,
                                      texture_strength, track_loss)
 from saft.scene.camera import look_at
+from saft.scene.motion import starts_moving
 from saft.synthetic import procedural_texture
 
 

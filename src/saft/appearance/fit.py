@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import json
+import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,6 +31,7 @@ from saft.appearance.texture_frames import refit_texture
 from saft.errors import SaftInputError
 from saft.io_utils import atomic_path, atomic_write_json, read_image, resize_images, write_image
 from saft.scene.camera import Camera
+from saft.scene.motion import starts_moving
 
 
 @dataclass
@@ -208,7 +210,10 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
         opt_maps = torch.optim.Adam(model.parameters(), lr=cfg.lr_texels)
     opt_env = torch.optim.Adam(env.parameters(), lr=cfg.lr_env, betas=tuple(cfg.betas_env))
     normals = None   # the learnt shading-normal correction (appearance.normals); None: the meshes' own
-    if cfg.normal_grid > 0:
+    moving = cfg.normal_grid > 0 and starts_moving(mask)
+    if moving:       # kept for clips that start at rest: on two clips cut mid-motion it lost at both seeds
+        logging.getLogger("saft").info("appearance.normal_grid: the clip starts moving, normals left as they are")
+    if cfg.normal_grid > 0 and not moving:
         normals = NormalCorrection(verts, triangles, uvs, cfg.normal_grid, cfg.normal_keys).to(dev)
         opt_normals = torch.optim.Adam(normals.parameters(), lr=cfg.lr_normals)
     shading = (lambda f: None) if normals is None else (lambda f: normals(int(f)))

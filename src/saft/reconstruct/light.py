@@ -16,7 +16,7 @@ the video's noise) is below Q0, the whole track loss weighs min(1, Q / shape.tra
 clip starts moving (the gate that
 tracks.texture_confidence applies only to a clip that starts moving), and the light vector (shape.lr_light,
 from shape.light_init) is kept; where Q >= Q0 (a textured cloth) the light is dropped and the tracks are left
-as they are: the run is the unlit one. A plain fabric in a clip that starts moving (tracks.starts_moving) is
+as they are: the run is the unlit one. A plain fabric in a clip that starts moving (saft.scene.motion) is
 unlit too: there the light lost (satin 3.49 -> 7.83, lamé 4.76 -> 9.55, plaid 0.95 -> 1.14, cotton 27.8 ->
 20.5; BENCHMARKS.md, "The plain-fabric light on clips that start moving").
 """
@@ -30,7 +30,8 @@ import numpy as np
 import torch
 
 from saft.reconstruct.context import PhaseContext
-from saft.reconstruct.tracks import VertexTracks, starts_moving, texture_q, visible_vertices
+from saft.reconstruct.tracks import VertexTracks, texture_q, visible_vertices
+from saft.scene.motion import starts_moving
 
 log = logging.getLogger("saft")
 

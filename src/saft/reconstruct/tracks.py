@@ -70,6 +70,7 @@ from scipy.ndimage import uniform_filter
 
 from saft.io_utils import bilinear_sample
 from saft.scene.camera import Camera
+from saft.scene.motion import starts_moving
 
 log = logging.getLogger("saft")
 
@@ -226,21 +227,6 @@ def texture_strength(rgb0: np.ndarray, mask0: np.ndarray, points: np.ndarray, bl
     return bilinear_sample(lam, points) / sigma ** 2
 
 
-# starts_moving's threshold: the silhouette's first change / its median change is 0.03 on the five appearance
-# clips that start at rest, 0.08 on the demo, 0.73 on the same clips cut at frame 24 (BENCHMARKS.md).
-START_SHARE = 0.3
-
-
-def starts_moving(mask: np.ndarray, share: float = START_SHARE) -> bool:
-    """Whether a clip (mask (N, H, W) in [0, 1]) starts in motion: the silhouette's change from frame 0 to 1
-    (summed |Δmask|) is at least `share` times its median change between consecutive frames. Unlike the
-    tracks' first step it does not depend on the texture."""
-    if mask.shape[0] < 2:
-        return False
-    change = np.abs(np.diff(mask.astype(np.float64), axis=0)).sum(axis=(1, 2))
-    return bool(change[0] >= share * np.median(change) and change[0] > 0)
-
-
 def texture_q(rgb0: np.ndarray, mask0: np.ndarray, points: np.ndarray, valid: np.ndarray) -> float:
     """Q of a clip: the median texture_strength at the points that start a track (points (P, 2), valid (P,)
     bool); inf where none does."""
@@ -358,5 +344,5 @@ def track_loss(positions: torch.Tensor, tracks: VertexTracks, camera: Camera, hu
 
 
 __all__ = ["VertexTracks", "compute_vertex_tracks", "end_at_colour_drift", "texture_strength", "texture_q", "texture_confidence",
-           "noise_level", "starts_moving", "START_SHARE", "track_loss", "hidden_vertices", "track_points", "project", "visible_vertices",
+           "noise_level", "track_loss", "hidden_vertices", "track_points", "project", "visible_vertices",
            "dense_flow", "bilinear_sample", "to_gray_u8"]
