@@ -18,7 +18,7 @@ tracks.texture_confidence applies only to a clip that starts moving), and the li
 from shape.light_init) is kept; where Q >= Q0 (a textured cloth) the light is dropped and the tracks are left
 as they are: the run is the unlit one. A plain fabric in a clip that starts moving (saft.scene.motion) is
 unlit too: there the light lost (satin 3.49 -> 7.83, lamé 4.76 -> 9.55, plaid 0.95 -> 1.14, cotton 27.8 ->
-20.5; BENCHMARKS.md, "The plain-fabric light on clips that start moving").
+20.5; BENCHMARKS.md, "Twelfth session's defaults").
 """
 
 from __future__ import annotations
