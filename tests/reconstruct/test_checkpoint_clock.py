@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 import saft.reconstruct.checkpoint as checkpoint
 from saft.reconstruct.checkpoint import CheckpointClock
 
@@ -12,21 +14,17 @@ def _clock_at(monkeypatch, seconds: float):
     return CheckpointClock(seconds), now
 
 
-def test_a_cheap_checkpoint_is_due_after_the_interval(monkeypatch):
+@pytest.mark.parametrize("cost, quiet_until, due_at", [
+    (0.01, 19.9, 20.1),   # a cheap checkpoint: due after the interval
+    (1.0, 49.0, 50.5),    # 1 s to write: due after 1 / SHARE = 50 s, not 20
+])
+def test_a_checkpoint_is_due_after_the_interval_or_when_its_cost_is_a_small_share(monkeypatch, cost, quiet_until,
+                                                                                    due_at):
     clock, now = _clock_at(monkeypatch, 20.0)
-    clock.mark(0.01)
-    now[0] += 19.9
+    clock.mark(cost)
+    now[0] += quiet_until
     assert not clock.due()
-    now[0] += 0.2
-    assert clock.due()
-
-
-def test_a_costly_checkpoint_waits_until_its_cost_is_a_small_share(monkeypatch):
-    clock, now = _clock_at(monkeypatch, 20.0)
-    clock.mark(1.0)                                # 1 s to write: due after 1 / SHARE = 50 s, not 20
-    now[0] += 49.0
-    assert not clock.due()
-    now[0] += 1.5
+    now[0] += due_at - quiet_until
     assert clock.due()
 
 

@@ -210,10 +210,11 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
         opt_maps = torch.optim.Adam(model.parameters(), lr=cfg.lr_texels)
     opt_env = torch.optim.Adam(env.parameters(), lr=cfg.lr_env, betas=tuple(cfg.betas_env))
     normals = None   # the learnt shading-normal correction (appearance.normals); None: the meshes' own
-    moving = cfg.normal_grid > 0 and starts_moving(mask)
-    if moving:       # kept for clips that start at rest: on two clips cut mid-motion it lost at both seeds
+    correct_normals = cfg.normal_grid > 0
+    if correct_normals and starts_moving(mask):   # only from rest: on two clips cut mid-motion it lost twice
         logging.getLogger("saft").info("appearance.normal_grid: the clip starts moving, normals left as they are")
-    if cfg.normal_grid > 0 and not moving:
+        correct_normals = False
+    if correct_normals:
         normals = NormalCorrection(verts, triangles, uvs, cfg.normal_grid, cfg.normal_keys).to(dev)
         opt_normals = torch.optim.Adam(normals.parameters(), lr=cfg.lr_normals)
     shading = (lambda f: None) if normals is None else (lambda f: normals(int(f)))

@@ -20,8 +20,6 @@ what it can determine (issue 28):
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import torch
 import torch.nn.functional as Fnn
@@ -30,11 +28,7 @@ from scipy.ndimage import gaussian_filter
 from torch import nn
 
 from saft.appearance.metal import MetalColour, metal_blend
-
-
-def _logit(p: float) -> float:
-    p = min(max(p, 1e-4), 1 - 1e-4)
-    return math.log(p / (1 - p))
+from saft.appearance.params import logit
 
 
 def _merge_close(centres: np.ndarray, distance: float) -> np.ndarray:
@@ -115,8 +109,8 @@ class GuidedMaps(nn.Module):
         self.register_buffer("area", onehot.mean(dim=(1, 2)))
         self.min_roughness = min_roughness
         self.gain = nn.Parameter(torch.zeros(1, 3, gain_grid, gain_grid))
-        self.rough_logit = nn.Parameter(torch.full((k,), _logit(init_roughness)))
-        self.metal_logit = nn.Parameter(torch.full((k,), _logit(init_metallic)))
+        self.rough_logit = nn.Parameter(torch.full((k,), logit(init_roughness)))
+        self.metal_logit = nn.Parameter(torch.full((k,), logit(init_metallic)))
         # metallic = sigmoid(metal_logit · metal_scale): a scale > 1 moves a cluster's metallic that many times
         # faster under Adam (use_metal_colour's rate); 1 for every cluster otherwise
         self.register_buffer("metal_scale", torch.ones(k))
@@ -171,9 +165,10 @@ class GuidedMaps(nn.Module):
     def metal_prior(self, lambda_l1: float, lambda_blend: float) -> torch.Tensor:
         """lambda_l1 × the area-weighted metallic of the clusters without a metal colour (sparsity) plus
         lambda_blend × metal_blend of those with one (metal or not, appearance.metal)."""
-        m = self.cluster_values()["metallic"]
-        allowed = self.metal.allowed if self.metal is not None else torch.zeros_like(m)
-        return lambda_l1 * (self.area * m * (1 - allowed)).sum() + lambda_blend * metal_blend(self.area * allowed, m)
+        if self.metal is None:
+            return lambda_l1 * self.metallic_l1()
+        m, allowed = self.cluster_values()["metallic"], self.metal.allowed
+        return lambda_l1 * self.metallic_l1(1 - allowed) + lambda_blend * metal_blend(self.area * allowed, m)
 
     def forward(self, env: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """The maps, the base colour with the clusters' metal colours where they have them (mix_metal)."""
@@ -196,7 +191,7 @@ class GuidedMaps(nn.Module):
     @torch.no_grad()
     def set_roughness(self, k: int, roughness: float) -> None:
         """Cluster k to this roughness, metallic 0 (appearance.evidence's band for an undetermined cluster)."""
-        self.rough_logit[k] = 20.0 if roughness >= 1.0 else _logit(roughness)
+        self.rough_logit[k] = 20.0 if roughness >= 1.0 else logit(roughness)
         self.metal_logit[k] = -20.0
 
     @torch.no_grad()
@@ -208,6 +203,7 @@ class GuidedMaps(nn.Module):
         """Mean over the gain grid's cells and channels of (G_c − mean_c G)²: 0 for any grey gain."""
         return (self.gain - self.gain.mean(dim=1, keepdim=True)).pow(2).mean()
 
-    def metallic_l1(self) -> torch.Tensor:
-        """Area-weighted mean metallic (the sparsity prior)."""
-        return (self.area * torch.sigmoid(self.metal_logit)).sum()
+    def metallic_l1(self, weight: torch.Tensor | None = None) -> torch.Tensor:
+        """Area-weighted mean metallic (the sparsity prior), each cluster's share times `weight` (K,) if given."""
+        area = self.area if weight is None else self.area * weight
+        return (area * self.cluster_values()["metallic"]).sum()

@@ -19,19 +19,14 @@ appearance.metal_gate (optional) decides before the fit which clusters get a met
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import torch
 from torch import nn
 
+from saft.appearance.params import logit
+
 METAL_F0_MIN = 0.5        # the smallest brightest channel of a metal's F0 (linear; titanium 0.54, iron 0.58)
 METAL_START = 0.8         # the brightness every cluster's metal colour starts at
-
-
-def _logit(p: float) -> float:
-    p = min(max(p, 1e-4), 1 - 1e-4)
-    return math.log(p / (1 - p))
 
 
 def start_hue(mean_colour: np.ndarray) -> np.ndarray:
@@ -50,7 +45,7 @@ class MetalColour(nn.Module):
         super().__init__()
         k = len(mean_colour)
         start = (METAL_START - METAL_F0_MIN) / (1 - METAL_F0_MIN)
-        self.bright_logit = nn.Parameter(torch.full((k,), _logit(start)))
+        self.bright_logit = nn.Parameter(torch.full((k,), logit(start)))
         self.hue_logit = nn.Parameter(torch.as_tensor(start_hue(mean_colour), dtype=torch.float32))
         allowed = np.ones(k, bool) if allowed is None else np.asarray(allowed, bool)
         self.register_buffer("allowed", torch.as_tensor(allowed.astype(np.float32)))

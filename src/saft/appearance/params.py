@@ -13,7 +13,8 @@ import torch.nn.functional as Fnn
 from torch import nn
 
 
-def _logit(p: float) -> float:
+def logit(p: float) -> float:
+    """log(p / (1 − p)) of p clamped to [1e-4, 1 − 1e-4]: a sigmoid parameter's start."""
     p = min(max(p, 1e-4), 1 - 1e-4)
     return math.log(p / (1 - p))
 
@@ -99,7 +100,7 @@ class TextureDecoder(nn.Module):
                     nn.init.kaiming_normal_(m.weight, a=0.2)
                     nn.init.zeros_(m.bias)
             nn.init.normal_(self.head.weight, std=1e-3)
-        bias = torch.tensor([_logit(init_diffuse)] * 3 + [_logit(init_roughness), _logit(init_metallic)])
+        bias = torch.tensor([logit(init_diffuse)] * 3 + [logit(init_roughness), logit(init_metallic)])
         with torch.no_grad():
             self.head.bias.copy_(bias.repeat(num_tiles))
 
@@ -121,7 +122,7 @@ class TexelMaps(nn.Module):
                  init_roughness: float = 0.5, init_metallic: float = 0.5):
         super().__init__()
         self.min_roughness = min_roughness
-        init = torch.tensor([_logit(init_diffuse)] * 3 + [_logit(init_roughness), _logit(init_metallic)])
+        init = torch.tensor([logit(init_diffuse)] * 3 + [logit(init_roughness), logit(init_metallic)])
         self.logits = nn.Parameter(init[:, None, None].repeat(1, size, size).clone())
 
     @property

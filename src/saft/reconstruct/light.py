@@ -12,10 +12,9 @@ vertices in the cotton clip's large motion (frames 6-12), and at their full weig
 With a known light the relative shading (saft.render.shading) halves the cotton's error only once those tracks
 weigh little (BENCHMARKS.md, "Shading as the shape cue of plain cloth"). So with shape.plain_shading = Q0 > 0,
 where the tracks' median texture strength Q at frame 0 (saft.reconstruct.tracks.texture_strength, in units of
-the video's noise) is below Q0, the whole track loss weighs min(1, Q / shape.track_texture) whether or not the
-clip starts moving (the gate that
-tracks.texture_confidence applies only to a clip that starts moving), and the light vector (shape.lr_light,
-from shape.light_init) is kept; where Q >= Q0 (a textured cloth) the light is dropped and the tracks are left
+the video's noise) is below Q0, the whole track loss weighs min(1, Q / shape.track_texture) also on a clip from
+rest (tracks.texture_confidence weighs it so only where the clip starts moving), and the light vector
+(shape.lr_light, from shape.light_init) is kept; where Q >= Q0 (a textured cloth) the light is dropped and the tracks are left
 as they are: the run is the unlit one. A plain fabric in a clip that starts moving (saft.scene.motion) is
 unlit too: there the light lost (satin 3.49 -> 7.83, lamé 4.76 -> 9.55, plaid 0.95 -> 1.14, cotton 27.8 ->
 20.5; BENCHMARKS.md, "Twelfth session's defaults").
