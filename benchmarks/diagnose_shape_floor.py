@@ -6,8 +6,14 @@ cloth), then scored exactly as `saft evaluate` scores (same surface samples, sam
 result's CD2 and this floor is what inference loses; the floor itself is what the mesh resolution and the
 sensor's noise allow. No image is used: this is an upper bound for any method on this topology.
 
+CD2 does not see a vertex sliding along the surface, so the free floor's meshes do not keep the result's
+material points (their texture lands elsewhere). With `--along-rays` each vertex may only move along its own
+camera ray: the projections, and so the rendered image, stay the result's; what that floor leaves is the
+error in depth alone.
+
     python3 benchmarks/diagnose_shape_floor.py RESULT_DIR [--scene ../shared/data/phi_sft/data/scenes/R1.json]
-        [--frames 0,10,20] [--every 5] [--edge-weight 10] [--steps 300] [--json OUT.json]
+        [--frames 0,10,20] [--every 5] [--edge-weight 10] [--steps 300] [--along-rays] [--json OUT.json]
+        [--save DIR]
 """
 from __future__ import annotations
 
@@ -39,15 +45,20 @@ def mesh_edges(triangles: np.ndarray) -> np.ndarray:
 
 
 def fit_to_cloud(vertices: np.ndarray, triangles: np.ndarray, gt: np.ndarray, rest: torch.Tensor,
-                 edges: torch.Tensor, edge_weight: float, steps: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """The vertices moved to minimise sampled CD2 + edge_weight · 1e-4 · mean relative strain²."""
+                 edges: torch.Tensor, edge_weight: float, steps: int, seed: int,
+                 rays: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The vertices moved to minimise sampled CD2 + edge_weight · 1e-4 · mean relative strain²; with rays
+    ((V, 3) unit directions), each only along its own ray."""
     rng = np.random.default_rng(seed)
-    x = torch.tensor(vertices, requires_grad=True)
+    start = torch.as_tensor(vertices)
+    step = torch.zeros(len(vertices) if rays is not None else vertices.shape, dtype=torch.float64, requires_grad=True)
+    ray = None if rays is None else torch.as_tensor(rays)
     gt_t = torch.as_tensor(gt, dtype=torch.float64)
     tris = torch.as_tensor(triangles)
     gt_tree = cKDTree(gt)
-    optimiser = torch.optim.Adam([x], lr=5e-4)
+    optimiser = torch.optim.Adam([step], lr=5e-4)
     for _ in range(steps):
+        x = start + (step if ray is None else step[:, None] * ray)
         corners = x[tris]
         area = torch.linalg.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]).norm(dim=1).detach().numpy()
         which = rng.choice(len(triangles), SAMPLES, p=area / area.sum())
@@ -76,10 +87,15 @@ def main() -> None:
     ap.add_argument("--every", type=int, default=5)
     ap.add_argument("--edge-weight", type=float, default=10.0)
     ap.add_argument("--steps", type=int, default=300)
+    ap.add_argument("--along-rays", action="store_true", help="move each vertex only along its camera ray")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--save", type=Path, default=None, help="write each frame's moved vertices as floor_FFF.npy")
     a = ap.parse_args()
     torch.set_num_threads(1)
-    gts = load_ground_truth_frames(ground_truth_spec_for(load_scene(a.scene)))
+    scene = load_scene(a.scene)
+    gts = load_ground_truth_frames(ground_truth_spec_for(scene))
+    w2c = scene.camera.world_to_camera
+    centre = -w2c[:3, :3].T @ w2c[:3, 3]
     files = sorted((a.result / "meshes").glob("frame_*.obj"))
     frames = ([int(f) for f in a.frames.split(",")] if a.frames else
               sorted(set(range(0, len(files), a.every)) | {len(files) - 1}))
@@ -92,7 +108,14 @@ def main() -> None:
     for f in frames:
         gt, vertices = gts[f], read_result_mesh(files[f]).vertices
         before = chamfer2(sample_surface(vertices, triangles, len(gt), frame_rng(0, f)), gt)
-        moved, strain = fit_to_cloud(vertices, triangles, gt, rest, edges, a.edge_weight, a.steps, seed=f)
+        rays = None
+        if a.along_rays:
+            rays = vertices - centre
+            rays = rays / np.linalg.norm(rays, axis=1, keepdims=True)
+        moved, strain = fit_to_cloud(vertices, triangles, gt, rest, edges, a.edge_weight, a.steps, seed=f, rays=rays)
+        if a.save:
+            a.save.mkdir(parents=True, exist_ok=True)
+            np.save(a.save / f"floor_{f:03d}.npy", moved)
         floor = chamfer2(sample_surface(moved, triangles, len(gt), frame_rng(0, f)), gt)
         rows.append(dict(frame=f, cd2=before, floor=floor, strain_median=float(np.median(strain)),
                          strain_p95=float(np.percentile(strain, 95))))
