@@ -28,6 +28,7 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "physics.density": (0, INF, False),
     "physics.damping": (0, 1, False),
     "physics.swing_damping": (0, 1, True),
+    "physics.swing_run_damping": (0, 1, True),
     "physics.air_drag": (0, INF, True),
     "shape.initial_frames": (1, INF, True),
     "shape.add_frame_every": (1, INF, True),
