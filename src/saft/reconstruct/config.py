@@ -129,6 +129,11 @@ class ShapeConfig:
     full_pass_every: int = 25
     lambda_image: float = 1.0
     lambda_sil: float = 0.2
+    # lambda_sil in a run where the swing trial picks physics.swing_damping (0 = off: lambda_sil there too;
+    # saft.reconstruct.swing_weights). Every other run keeps lambda_sil, bit for bit. Newton one corner,
+    # with physics.swing_run_damping 0.995: 8.31 -> 6.34 at 1.0 (BENCHMARKS.md, "The swing's damping lowered
+    # further").
+    swing_lambda_sil: float = 0.0
     lambda_energy: float = 2.0            # R_E, stiffnesses detached
     lambda_force: float = 2e-4            # R_F
     force_directions: Literal["current", "template"] = "current"  # viewing directions for R_F

@@ -37,6 +37,7 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "shape.plateau_tol": (0, 1, True),
     "shape.lambda_image": (0, INF, True),
     "shape.lambda_sil": (0, INF, True),
+    "shape.swing_lambda_sil": (0, INF, True),
     "shape.lambda_energy": (0, INF, True),
     "shape.lambda_force": (0, INF, True),
     "shape.force_along_weight": (0, 1, True),
