@@ -80,7 +80,8 @@ class PhysicsConfig:
     # this) / (1 - damping). Why: saft's rollout of the Newton one-corner cloth with the aerodynamic
     # accelerations it felt (no learned force) is 49.5 from the truth (vertex MSE, 1e-4 m^2) at 0.99, 37.5 at
     # 0.995, 31.5 at 0.999: the ether damping still brakes Newton's swing, whose braking is the air's (now
-    # physics.air_drag). Measured in BENCHMARKS.md, "The swing's damping lowered further".
+    # physics.air_drag). 0.995 with shape.swing_lambda_sil 1.0: Newton one corner 9.94 -> 6.35, its twin 2.58 ->
+    # 1.77 (BENCH_swing2.md; the gain is the rates' 0.05 more than the damping: 0.99 with the rates halved 8.51).
     swing_run_damping: float = 0.0
     # Air drag of still air on the cloth (saft.physics.drag; issue 29, not in the paper): the initial coefficient
     # c = rho_air C_d / 2 in kg/m^3 of the pressure -c A |u| u n on each triangle (0 = off). The prior for a
@@ -131,8 +132,8 @@ class ShapeConfig:
     lambda_sil: float = 0.2
     # lambda_sil in a run where the swing trial picks physics.swing_damping (0 = off: lambda_sil there too;
     # saft.reconstruct.swing_weights). Every other run keeps lambda_sil, bit for bit. Newton one corner,
-    # with physics.swing_run_damping 0.995: 8.31 -> 6.34 at 1.0 (BENCHMARKS.md, "The swing's damping lowered
-    # further").
+    # with physics.swing_run_damping 0.995: 8.31 -> 6.34 at 1.0; ALONE (damping 0.99, the rates x0.1) it
+    # loses: 9.94 -> 15.95 (BENCH_swing2.md): use the two together.
     swing_lambda_sil: float = 0.0
     lambda_energy: float = 2.0            # R_E, stiffnesses detached
     lambda_force: float = 2e-4            # R_F
