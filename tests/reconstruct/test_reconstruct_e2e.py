@@ -174,3 +174,16 @@ def test_air_drag_where_swing_is_the_option_off_bit_for_bit_where_the_damping_st
     gated = reconstruct(scene, load_config(SaftConfig, None, base), tmp_path / "on", quiet=True)   # the default
     assert np.array_equal(off.positions, gated.positions)
     assert "air_drag" not in json.loads((tmp_path / "on" / "params.json").read_text())
+
+
+def test_the_swing_options_leave_a_run_that_keeps_the_default_damping_bit_for_bit(tiny_scene, tmp_path):
+    """physics.swing_run_damping and shape.swing_lambda_sil act only where the swing trial picks the low damping:
+    on the hanging cloth (no swing) the run with both on equals the run without."""
+    scene = tiny_scene.with_frames(3)
+    base = TINY_CONFIG + ["texture.epochs=3", "shape.final_epochs=3"]
+    off = reconstruct(scene, load_config(SaftConfig, None, base), tmp_path / "off", quiet=True)
+    on = reconstruct(scene, load_config(SaftConfig, None, base + ["physics.swing_run_damping=0.995",
+                                                                  "shape.swing_lambda_sil=1.0"]),
+                     tmp_path / "on", quiet=True)
+    assert np.array_equal(off.positions, on.positions)
+    assert json.loads((tmp_path / "on" / "params.json").read_text())["damping"] == SaftConfig().physics.damping

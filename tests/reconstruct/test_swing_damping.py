@@ -86,3 +86,41 @@ def test_params_json_names_the_damping_the_run_used():
     assert shape_params_summary(state.state_dict(), SaftConfig(), scene)["damping"] == PhysicsConfig().damping
     state.damping = 0.99
     assert shape_params_summary(state.state_dict(), SaftConfig(), scene)["damping"] == 0.99
+
+
+def test_swing_run_damping_replaces_the_trials_pick_only_where_the_trial_picks_it():
+    from saft.reconstruct.shape_phase import restore_shape_state
+    from saft.reconstruct.swing_damping import FORCE_RATES, rate_scale, run_damping
+
+    assert PhysicsConfig().swing_run_damping == 0.0                        # off by default
+    sim, state, camera = _corner()
+    rates = {n: s.lr for n, s in state.optimizer.specs.items()}
+    phys = PhysicsConfig(swing_damping=0.99, swing_run_damping=0.995)
+    swinging = _tracks_of(_swing(sim, state, 0.99), camera)
+    state.damping = run_damping(state, sim, swinging, camera, phys)
+    assert state.damping == 0.995
+    scale = rate_scale(phys.damping, 0.995)
+    assert abs(scale - 0.05) < 1e-12
+    for name, spec in state.optimizer.specs.items():
+        assert abs(spec.lr - (rates[name] * scale if name in FORCE_RATES else rates[name])) < 1e-15, name
+    back = restore_shape_state(state.state_dict(), ShapeConfig(lr_v0=0), "cpu")   # a resumed run keeps it
+    assert run_damping(back, sim, swinging, camera, phys) == 0.995
+    _, still_state, _ = _corner()                                          # the trial keeps the default there
+    still = _tracks_of(sim.template.expand(10, -1, -1), camera)
+    assert run_damping(still_state, sim, still, camera, phys) == phys.damping
+    assert {n: s.lr for n, s in still_state.optimizer.specs.items()} == rates
+    _, off_state, _ = _corner()                                            # off: the trial's own pick
+    assert run_damping(off_state, sim, swinging, camera, PhysicsConfig(swing_damping=0.99)) == 0.99
+
+
+def test_swing_run_damping_is_range_checked():
+    import pytest
+
+    from saft.errors import SaftInputError
+    from saft.reconstruct.config import SaftConfig
+    from saft.reconstruct.config_checks import check_config_ranges
+
+    cfg = SaftConfig()
+    cfg.physics.swing_run_damping = 1.5
+    with pytest.raises(SaftInputError):
+        check_config_ranges(cfg)

@@ -40,6 +40,7 @@ from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_lo
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
 from saft.reconstruct.step_guard import StepGuard
 from saft.reconstruct.air_drag import run_damping_and_drag
+from saft.reconstruct.swing_weights import swing_shape_config
 from saft.reconstruct.tracks import VertexTracks, compute_vertex_tracks, hidden_vertices, track_loss
 from saft.reconstruct.window_hold import outside_window, per_frame, restore_outside_window
 
@@ -448,6 +449,7 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
     if phys.rest_shape == "moving":             # flat exactly when v0 is learned (so a resumed run agrees)
         sim.use_rest_shape("flat" if state.params.v0_field is not None else "template")
     state.damping = sim.damping = run_damping_and_drag(state, sim, tracks, ctx.camera, phys)   # and air_drag_where
+    cfg = swing_shape_config(cfg, phys, state.damping)
     if cfg.window > 0 and state.states is None:
         zeros = sim.template.new_zeros((n_frames,) + tuple(sim.template.shape))
         state.states = FrameStates(zeros.clone(), zeros.clone(), 1)

@@ -87,12 +87,16 @@ def choose_damping(sim, params, tracks: VertexTracks | None, camera: Camera, def
 
 def run_damping(state, sim, tracks: VertexTracks | None, camera: Camera, phys) -> float:
     """The run's damping: a resumed run's (state.damping, from its checkpoint) or choose_damping's from
-    physics.damping and physics.swing_damping (`phys`: PhysicsConfig). Where it is the low one, the learning
+    physics.damping and physics.swing_damping (`phys`: PhysicsConfig), replaced by physics.swing_run_damping
+    where the trial picks the low one and that option is on (> 0). Where it is not the default, the learning
     rates of the accelerations (FORCE_RATES) are scaled by rate_scale in state.optimizer, built afresh at every
     start of the phase (`state`: ShapeState before its first epoch of this process)."""
     chosen = state.damping
     if chosen is None:
         chosen = choose_damping(sim, state.params, tracks, camera, phys.damping, phys.swing_damping)
+        if chosen != phys.damping and phys.swing_run_damping > 0:   # the trial's pick, run lower still
+            log.info("damping %.4g in the run (physics.swing_run_damping)", phys.swing_run_damping)
+            chosen = phys.swing_run_damping
     if chosen != phys.damping:
         for name in FORCE_RATES:
             if name in state.optimizer.specs:
