@@ -181,9 +181,9 @@ def test_the_swing_options_leave_a_run_that_keeps_the_default_damping_bit_for_bi
     on the hanging cloth (no swing) the run with both on equals the run without."""
     scene = tiny_scene.with_frames(3)
     base = TINY_CONFIG + ["texture.epochs=3", "shape.final_epochs=3"]
-    off = reconstruct(scene, load_config(SaftConfig, None, base), tmp_path / "off", quiet=True)
-    on = reconstruct(scene, load_config(SaftConfig, None, base + ["physics.swing_run_damping=0.995",
-                                                                  "shape.swing_lambda_sil=1.0"]),
-                     tmp_path / "on", quiet=True)
+    off = reconstruct(scene, load_config(SaftConfig, None, base + ["physics.swing_run_damping=0",
+                                                                   "shape.swing_lambda_sil=0"]),
+                      tmp_path / "off", quiet=True)
+    on = reconstruct(scene, load_config(SaftConfig, None, base), tmp_path / "on", quiet=True)   # the defaults
     assert np.array_equal(off.positions, on.positions)
     assert json.loads((tmp_path / "on" / "params.json").read_text())["damping"] == SaftConfig().physics.damping

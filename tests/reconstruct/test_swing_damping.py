@@ -60,7 +60,7 @@ def test_the_choice_is_checkpointed_a_resumed_run_keeps_it_and_the_force_rates_f
     sim, state, camera = _corner()
     assert state.damping is None   # chosen at epoch 0
     rates = {n: s.lr for n, s in state.optimizer.specs.items()}
-    phys = PhysicsConfig(swing_damping=0.99)
+    phys = PhysicsConfig(swing_damping=0.99, swing_run_damping=0.0)   # the trial alone
     state.damping = run_damping(state, sim, _tracks_of(_swing(sim, state, 0.99), camera), camera, phys)
     assert state.damping == 0.99
     scale = rate_scale(PhysicsConfig().damping, 0.99)
@@ -92,7 +92,7 @@ def test_swing_run_damping_replaces_the_trials_pick_only_where_the_trial_picks_i
     from saft.reconstruct.shape_phase import restore_shape_state
     from saft.reconstruct.swing_damping import FORCE_RATES, rate_scale, run_damping
 
-    assert PhysicsConfig().swing_run_damping == 0.0                        # off by default
+    assert PhysicsConfig().swing_run_damping == 0.995                      # the default
     sim, state, camera = _corner()
     rates = {n: s.lr for n, s in state.optimizer.specs.items()}
     phys = PhysicsConfig(swing_damping=0.99, swing_run_damping=0.995)
@@ -110,7 +110,8 @@ def test_swing_run_damping_replaces_the_trials_pick_only_where_the_trial_picks_i
     assert run_damping(still_state, sim, still, camera, phys) == phys.damping
     assert {n: s.lr for n, s in still_state.optimizer.specs.items()} == rates
     _, off_state, _ = _corner()                                            # off: the trial's own pick
-    assert run_damping(off_state, sim, swinging, camera, PhysicsConfig(swing_damping=0.99)) == 0.99
+    off = PhysicsConfig(swing_damping=0.99, swing_run_damping=0.0)
+    assert run_damping(off_state, sim, swinging, camera, off) == 0.99
 
 
 def test_swing_run_damping_is_range_checked():

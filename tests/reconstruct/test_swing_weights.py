@@ -5,12 +5,12 @@ import pytest
 from saft.reconstruct.config import PhysicsConfig, SaftConfig, ShapeConfig
 
 
-def test_off_by_default_and_the_config_unchanged_where_the_run_keeps_the_default_damping():
+def test_off_and_the_config_unchanged_where_the_run_keeps_the_default_damping():
     from saft.reconstruct.swing_weights import swing_shape_config
 
     phys = PhysicsConfig()
-    assert ShapeConfig().swing_lambda_sil == 0.0
-    off = ShapeConfig()
+    assert ShapeConfig().swing_lambda_sil == 1.0                              # the default
+    off = ShapeConfig(swing_lambda_sil=0.0)
     assert swing_shape_config(off, phys, phys.swing_damping) is off           # off: even in a swing
     on = ShapeConfig(swing_lambda_sil=1.0)
     assert swing_shape_config(on, phys, phys.damping) is on                   # no swing: the same object
