@@ -1,0 +1,74 @@
+"""Metal or not per cluster after the fit (appearance.metal_decide) and the metal clusters' start (metal_start)."""
+
+import numpy as np
+import pytest
+import torch
+
+from saft.appearance.config import AppearanceConfig
+from saft.appearance.guided import GuidedMaps
+from saft.appearance.metal_decide import decide_metals, held_out_frames
+
+torch.set_num_threads(1)
+
+
+def _model(metallic=0.3):
+    tex = np.full((16, 16, 3), [0.08, 0.06, 0.02], np.float32)   # dark gold (a metal's frame-0 diffuse)
+    tex[:, 8:] = [0.05, 0.06, 0.18]                              # dark blue cloth
+    model = GuidedMaps(tex, size=16, gain_grid=2, clusters=2, init_roughness=0.3, init_metallic=metallic)
+    gold = int(model.members[:, 0, 0].argmax())
+    model.use_metal_colour(rate=3.0, allowed=np.arange(2) == gold)
+    return model, gold, tex
+
+
+def _loss_to(target):
+    """A 'render' that is the base colour itself: the loss is its squared distance to target (S, S, 3)."""
+    target = torch.as_tensor(target)
+    return lambda f, maps, spp, seed: ((maps["diffuse"] - target) ** 2).mean()
+
+
+def test_held_out_frames_split_the_clip():
+    train, held = held_out_frames(32)
+    assert len(held) == 8 and held[0] == 0 and held[-1] == 31 and not set(train) & set(held)
+    assert sorted(train + held) == list(range(32))
+    assert held_out_frames(4) == ([0, 1, 2, 3], [0, 1, 2, 3])   # nothing left to refit on: all of them
+
+
+def test_a_bright_gold_cluster_is_decided_metal_and_a_dark_one_dielectric():
+    model, gold, tex = _model()
+    bright = tex.copy()
+    bright[:, :8] = [0.9, 0.7, 0.3]   # the frames show the gold cluster as bright as a metal's F0
+    rows = decide_metals(model, None, _loss_to(bright), 12, epochs=20, lr=0.05)
+    assert [r["decision"] for r in rows] == ["metal"] and rows[0]["cluster"] == gold
+    assert rows[0]["held_loss_metal"] < rows[0]["held_loss_dielectric"]
+    assert model.cluster_values()["metallic"][gold].item() == pytest.approx(1.0, abs=1e-6)
+
+    model, gold, tex = _model()
+    rows = decide_metals(model, None, _loss_to(tex), 12, epochs=20, lr=0.05)   # the frames show its texture
+    assert [r["decision"] for r in rows] == ["dielectric"]
+    assert model.cluster_values()["metallic"][gold].item() == pytest.approx(0.0, abs=1e-6)
+
+
+def test_only_half_metal_clusters_with_a_metal_colour_are_decided():
+    for metallic in (0.01, 0.99):   # already dielectric or metal: left as fitted
+        model, gold, tex = _model(metallic)
+        before = {k: v.clone() for k, v in model.state_dict().items()}
+        assert decide_metals(model, None, _loss_to(tex), 12, epochs=5, lr=0.05) == []
+        assert all(torch.equal(before[k], v) for k, v in model.state_dict().items())
+    plain = GuidedMaps(_model()[2], size=16, gain_grid=2, clusters=2, init_metallic=0.3)   # no metal colour
+    assert decide_metals(plain, None, _loss_to(_model()[2]), 12, epochs=5, lr=0.05) == []
+
+
+def test_metal_start_sets_only_the_metal_clusters_metallic():
+    tex = _model()[2]
+    model = GuidedMaps(tex, size=16, gain_grid=2, clusters=2, init_metallic=0.1)
+    gold = int(model.members[:, 0, 0].argmax())
+    model.use_metal_colour(rate=3.0, allowed=np.arange(2) == gold, start=0.5)
+    m = model.cluster_values()["metallic"]
+    assert m[gold].item() == pytest.approx(0.5, abs=1e-6) and m[1 - gold].item() == pytest.approx(0.1, abs=1e-6)
+
+
+def test_metal_decide_and_start_validate():
+    AppearanceConfig(metal_colour=True, metal_decide=30, metal_start=0.5).validate()
+    for bad in (dict(metal_decide=-1), dict(metal_start=1.0), dict(metal_start=-0.1)):
+        with pytest.raises(Exception):
+            AppearanceConfig(**bad).validate()
