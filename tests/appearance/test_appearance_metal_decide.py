@@ -7,6 +7,7 @@ import torch
 from saft.appearance.config import AppearanceConfig
 from saft.appearance.guided import GuidedMaps
 from saft.appearance.metal_decide import decide_metals, held_out_frames
+from saft.appearance.params import EnvironmentMap
 
 torch.set_num_threads(1)
 
@@ -23,7 +24,11 @@ def _model(metallic=0.3):
 def _loss_to(target):
     """A 'render' that is the base colour itself: the loss is its squared distance to target (S, S, 3)."""
     target = torch.as_tensor(target)
-    return lambda f, maps, spp, seed: ((maps["diffuse"] - target) ** 2).mean()
+    return lambda f, maps, env, spp, seed: ((maps["diffuse"] - target) ** 2).mean()
+
+
+def _env():
+    return EnvironmentMap(4, 8, 0.5, 0.01)
 
 
 def test_held_out_frames_split_the_clip():
@@ -37,13 +42,13 @@ def test_a_bright_gold_cluster_is_decided_metal_and_a_dark_one_dielectric():
     model, gold, tex = _model()
     bright = tex.copy()
     bright[:, :8] = [0.9, 0.7, 0.3]   # the frames show the gold cluster as bright as a metal's F0
-    rows = decide_metals(model, None, _loss_to(bright), 12, epochs=20, lr=0.05)
+    rows = decide_metals(model, _env(), 1.0, _loss_to(bright), 12, epochs=20, lr=0.05, lr_env=0.05)
     assert [r["decision"] for r in rows] == ["metal"] and rows[0]["cluster"] == gold
     assert rows[0]["held_loss_metal"] < rows[0]["held_loss_dielectric"]
     assert model.cluster_values()["metallic"][gold].item() == pytest.approx(1.0, abs=1e-6)
 
     model, gold, tex = _model()
-    rows = decide_metals(model, None, _loss_to(tex), 12, epochs=20, lr=0.05)   # the frames show its texture
+    rows = decide_metals(model, _env(), 1.0, _loss_to(tex), 12, epochs=20, lr=0.05, lr_env=0.05)   # the frames show its texture
     assert [r["decision"] for r in rows] == ["dielectric"]
     assert model.cluster_values()["metallic"][gold].item() == pytest.approx(0.0, abs=1e-6)
 
@@ -52,10 +57,10 @@ def test_only_half_metal_clusters_with_a_metal_colour_are_decided():
     for metallic in (0.01, 0.99):   # already dielectric or metal: left as fitted
         model, gold, tex = _model(metallic)
         before = {k: v.clone() for k, v in model.state_dict().items()}
-        assert decide_metals(model, None, _loss_to(tex), 12, epochs=5, lr=0.05) == []
+        assert decide_metals(model, _env(), 1.0, _loss_to(tex), 12, epochs=5, lr=0.05, lr_env=0.05) == []
         assert all(torch.equal(before[k], v) for k, v in model.state_dict().items())
     plain = GuidedMaps(_model()[2], size=16, gain_grid=2, clusters=2, init_metallic=0.3)   # no metal colour
-    assert decide_metals(plain, None, _loss_to(_model()[2]), 12, epochs=5, lr=0.05) == []
+    assert decide_metals(plain, _env(), 1.0, _loss_to(_model()[2]), 12, epochs=5, lr=0.05, lr_env=0.05) == []
 
 
 def test_metal_start_sets_only_the_metal_clusters_metallic():

@@ -337,10 +337,13 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
 
     decisions = []   # metal or not per half-metal cluster (appearance.metal_decide)
     if isinstance(model, GuidedMaps) and cfg.metal_decide > 0:
-        decisions = decide_metals(model, env_now, lambda f, m, spp, seed: masked_linearised_srgb_mse(
-            render_frame(f, m["diffuse"], m["roughness"], m["metallic"], env_now, spp, seed), lin_t[f], slope_t[f],
-            mask_t[f]), n_frames, cfg.metal_decide, cfg.lr_texels * cfg.lr_final_factor ** 0.5, cfg.evidence_spp,
-            cfg.seed)
+        decisions = decide_metals(model, env, colour_weight(cfg.epochs - 1, cfg.epochs, cfg.grey_fraction,
+                                                            cfg.blend_fraction),
+                                  lambda f, m, e, spp, seed: masked_linearised_srgb_mse(render_frame(
+                                      f, m["diffuse"], m["roughness"], m["metallic"], e, spp, seed), lin_t[f],
+                                      slope_t[f], mask_t[f]), n_frames, cfg.metal_decide,
+                                  cfg.lr_texels, cfg.lr_env, cfg.lr_final_factor, cfg.evidence_spp, cfg.seed)
+        env_now = env(colour_weight(cfg.epochs - 1, cfg.epochs, cfg.grey_fraction, cfg.blend_fraction)).detach()
     if isinstance(model, GuidedMaps) and cfg.evidence_threshold > 0:
         test_frames = [int(f) for f in np.linspace(0, n_frames - 1, min(n_frames, 8)).round()]
         evidence = cluster_evidence(model, env_now, render_frame, test_frames,
@@ -352,8 +355,7 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
                 row.update(metal_colour=c, metal_allowed=bool(a),
                            **({} if scores is None else {"highlight_colour": float(scores[row["cluster"]])}))
         for d in decisions:
-            evidence[d["cluster"]].update(metal_decision=d["decision"], held_loss_metal=d["held_loss_metal"],
-                                          held_loss_dielectric=d["held_loss_dielectric"])
+            evidence[d["cluster"]]["metal_decision"] = d
     final_state = state(cfg.epochs)
     if checkpoint is not None:
         checkpoint(final_state)

@@ -5,7 +5,8 @@ it ends metal is left to how far 150 epochs of noisy gradients carry its metalli
 end at 0.08-0.24 on saft's own motion (a half metal whose diffuse explains most of the frames) and at 0.98
 when found (BENCHMARKS "A metal colour per cluster…": "a question of travel, not of evidence"). A cloth's
 thread is metal or it is not, so each metal-coloured cluster that ends between the two is refitted briefly
-both ways from the fitted state, its metallic pinned at 1 (its metal colour) and at 0 (its texture), and
+both ways from the fitted state, its metallic pinned at 1 (its metal colour) and at 0 (its texture), with
+the env map (a metal reflects about five times as much light as the half metal the fit ended with), and
 keeps the one whose image loss on frames the refits did not see is lower.
 """
 
@@ -32,48 +33,62 @@ def _pin(model, k: int, metal: bool) -> None:
         model.metal_logit[k] = (PIN if metal else -PIN) / float(model.metal_scale[k])
 
 
-def refit_pinned(model, env: torch.Tensor, frame_loss: Callable, train: list[int], k: int, metal: bool,
-                 epochs: int, lr: float, batch: int = 3, seed: int = 0) -> None:
-    """`epochs` Adam steps (rate lr) of every map parameter but the detail share (appearance.detail decides
-    which frames may teach it) on `batch` random frames of `train` each, cluster k's metallic pinned at 1
-    (metal) or 0; the env map and the shading normals stay as fitted.
+def refit_pinned(model, env, weight: float, frame_loss: Callable, train: list[int], k: int, metal: bool,
+                 epochs: int, lr: float, lr_env: float, final: float = 1.0, batch: int = 3, seed: int = 0) -> None:
+    """`epochs` Adam steps of every map parameter but the detail share (rate lr; appearance.detail decides
+    which frames may teach it) and of the env map (rate lr_env: a metal's reflection is brighter than a half
+    metal's, the light it was fitted with has to follow), both rates decaying exponentially to `final` times
+    themselves, on `batch` random frames of `train` each, cluster k's metallic pinned at 1 (metal) or 0; the
+    shading normals stay as fitted.
 
-    frame_loss(frame, maps, spp, seed) → scalar: the image loss of the maps rendered at that frame."""
+    env: the env map module, env(weight) the map the renderer gets; frame_loss(frame, maps, env map, spp,
+    seed) → scalar: the image loss of the maps rendered at that frame."""
     _pin(model, k, metal)
     params = [p for name, p in model.named_parameters() if name != "detail_logit"]
-    opt = torch.optim.Adam(params, lr=lr)
+    opt = torch.optim.Adam([{"params": params, "lr": lr}, {"params": list(env.parameters()), "lr": lr_env}])
     rng = np.random.default_rng(seed)
     for epoch in range(epochs):
+        for group, rate in zip(opt.param_groups, (lr, lr_env)):
+            group["lr"] = rate * final ** (epoch / max(epochs - 1, 1))
         frames = rng.choice(train, min(batch, len(train)), replace=False)
-        maps = model(env)
+        e = env(weight)
+        maps = model(e)
         leaves = {name: v.detach().requires_grad_(True) for name, v in maps.items()}
+        e_leaf = e.detach().requires_grad_(True)
         for f in frames:
-            (frame_loss(int(f), leaves, 1, 104_729 + epoch * 1000 + int(f)) / len(frames)).backward()
+            (frame_loss(int(f), leaves, e_leaf, 1, 104_729 + epoch * 1000 + int(f)) / len(frames)).backward()
         opt.zero_grad(set_to_none=True)
         names = [n for n in leaves if leaves[n].grad is not None]
-        torch.autograd.backward([maps[n] for n in names], [leaves[n].grad for n in names])
-        for p in params:
+        outs, grads = [maps[n] for n in names], [leaves[n].grad for n in names]
+        if e_leaf.grad is not None:
+            outs, grads = outs + [e], grads + [e_leaf.grad]
+        torch.autograd.backward(outs, grads)
+        for p in params + list(env.parameters()):
             if p.grad is not None and not torch.isfinite(p.grad).all():
                 p.grad = None   # a Monte Carlo outlier: skip it, as the fit does
         if model.metal_logit.grad is not None:
             model.metal_logit.grad[k] = 0.0
         opt.step()
+        env.clamp_()
         _pin(model, k, metal)
 
 
 @torch.no_grad()
-def held_out_loss(model, env: torch.Tensor, frame_loss: Callable, held: list[int], spp: int) -> float:
+def held_out_loss(model, env, weight: float, frame_loss: Callable, held: list[int], spp: int) -> float:
     """The image loss summed over the held-out frames, each rendered with a fixed seed (the same samples for
     every alternative, so that the Monte Carlo noise cancels in their difference)."""
-    maps = model(env)
-    return sum(float(frame_loss(f, maps, spp, 7919 + f)) for f in held)
+    e = env(weight)
+    maps = model(e)
+    return sum(float(frame_loss(f, maps, e, spp, 7919 + f)) for f in held)
 
 
-def decide_metals(model, env: torch.Tensor, frame_loss: Callable, n_frames: int, epochs: int, lr: float,
-                  spp: int = 4, seed: int = 0, low: float = 0.05, high: float = 0.95) -> list[dict]:
+def decide_metals(model, env, weight: float, frame_loss: Callable, n_frames: int, epochs: int, lr: float,
+                  lr_env: float, final: float = 1.0, spp: int = 4, seed: int = 0, low: float = 0.05,
+                  high: float = 0.95) -> list[dict]:
     """Each cluster with a metal colour whose metallic lies in [low, high] (largest first) refitted metal and
-    dielectric (refit_pinned) from the model as it is; the model keeps the state with the lower held-out
-    loss. One dict per cluster decided: its metallic before, both losses, the decision. In place."""
+    dielectric (refit_pinned) from the model and env map as they are; both keep the state with the lower
+    held-out loss. One dict per cluster decided: its metallic, the held-out losses (fitted, each alternative
+    pinned before and after its refit), the refits' roughness, the decision. In place."""
     if model.metal is None:
         return []
     values = model.cluster_values()["metallic"].detach()
@@ -83,15 +98,21 @@ def decide_metals(model, env: torch.Tensor, frame_loss: Callable, n_frames: int,
     train, held = held_out_frames(n_frames)
     out = []
     for k in todo:
-        start = copy.deepcopy(model.state_dict())
+        start = copy.deepcopy((model.state_dict(), env.state_dict()))
+        row = {"cluster": k, "metallic_fitted": float(values[k]),
+               "held_loss_fitted": held_out_loss(model, env, weight, frame_loss, held, spp)}
         states, losses = {}, {}
-        for metal in (True, False):
-            model.load_state_dict(start)
-            refit_pinned(model, env, frame_loss, train, k, metal, epochs, lr, seed=seed + k)
-            losses[metal] = held_out_loss(model, env, frame_loss, held, spp)
-            states[metal] = copy.deepcopy(model.state_dict())
+        for metal, name in ((True, "metal"), (False, "dielectric")):
+            model.load_state_dict(start[0])
+            env.load_state_dict(start[1])
+            _pin(model, k, metal)
+            row[f"held_loss_{name}_unfitted"] = held_out_loss(model, env, weight, frame_loss, held, spp)
+            refit_pinned(model, env, weight, frame_loss, train, k, metal, epochs, lr, lr_env, final, seed=seed + k)
+            losses[metal] = row[f"held_loss_{name}"] = held_out_loss(model, env, weight, frame_loss, held, spp)
+            row[f"roughness_{name}"] = float(model.cluster_values()["roughness"][k].detach())
+            states[metal] = copy.deepcopy((model.state_dict(), env.state_dict()))
         metal = losses[True] < losses[False]
-        model.load_state_dict(states[metal])
-        out.append({"cluster": k, "metallic_fitted": float(values[k]), "held_loss_metal": losses[True],
-                    "held_loss_dielectric": losses[False], "decision": "metal" if metal else "dielectric"})
+        model.load_state_dict(states[metal][0])
+        env.load_state_dict(states[metal][1])
+        out.append({**row, "decision": "metal" if metal else "dielectric"})
     return out
