@@ -78,9 +78,10 @@ class AppearanceConfig:
     metal_start: float = 0.0
     # metal_colour: > 0: after the fit, each metal-coloured cluster whose metallic ended in [0.05, 0.95] is
     # refitted this many epochs twice from the fitted state, its metallic pinned at 1 and at 0, the maps and
-    # the env map (normals as fitted) at the fit's rates and decay (lr_texels, lr_env, lr_final_factor), on
-    # all frames but 8 evenly spaced ones, and keeps the one with the lower loss on those 8
-    # (appearance.metal_decide: a thread is metal or not; the lamé's ended half metal); 0 = off
+    # the env map (normals as fitted) at the fit's rates of mid-decay (lr_texels, lr_env × √lr_final_factor), on
+    # all frames but 8 evenly spaced ones; where the metal's loss on those 8 is lower than the dielectric's
+    # the cluster becomes metal, otherwise the fit is left as it was (appearance.metal_decide: a thread is
+    # metal or not; the lamé's ended half metal); 0 = off
     metal_decide: int = 0
     # maps="guided": mean squared colour of the log-gain grid (each cell's channels minus their mean), a
     # prior that ties the gain's colour to grey so the light's colour goes to the env map (0 = off)
