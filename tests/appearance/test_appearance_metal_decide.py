@@ -78,3 +78,26 @@ def test_metal_decide_and_start_validate():
     for bad in (dict(metal_decide=-1), dict(metal_start=1.0), dict(metal_start=-0.1)):
         with pytest.raises(Exception):
             AppearanceConfig(**bad).validate()
+
+
+def test_the_fit_decides_its_half_metal_clusters_and_records_it():
+    """End to end on a tiny scene: every cluster has a metal colour (no gate) and starts half metal, so
+    each is decided; appearance.json's materials carry the decision and its held-out losses."""
+    from saft.appearance.config import cpu_profile
+    from saft.appearance.fit import fit_appearance
+    from saft.appearance.params import linear_to_srgb
+    from saft.synthetic.appearance import make_scene
+
+    sc = make_scene(n_frames=2, image_size=32, map_size=32, render_spp=16)
+    cfg = cpu_profile()
+    cfg.epochs, cfg.frames_per_epoch, cfg.texel_size, cfg.image_scale, cfg.clusters = 2, 1, 64, 1.0, 2
+    cfg.metal_gate, cfg.metal_start, cfg.metal_decide, cfg.texture_frames, cfg.normal_grid = 0.0, 0.5, 2, 0, 0
+    res = fit_appearance(sc.vertices, sc.triangles, sc.uvs, sc.camera, sc.rgb, sc.mask, cfg,
+                         init_texture=linear_to_srgb(torch.as_tensor(sc.diffuse)).numpy())
+    decided = [m["metal_decision"] for m in res.materials if "metal_decision" in m]
+    assert decided and all(d["decision"] in ("metal", "as fitted") for d in decided)
+    assert all(np.isfinite([d["held_loss_metal"], d["held_loss_dielectric"], d["held_loss_fitted"]]).all()
+               for d in decided)
+    for m in res.materials:
+        if m.get("metal_decision", {}).get("decision") == "metal" and m["determined"]:
+            assert m["metallic"] == pytest.approx(1.0, abs=1e-6)
