@@ -74,7 +74,7 @@ def test_metal_start_sets_only_the_metal_clusters_metallic():
 
 
 def test_metal_decide_and_start_validate():
-    AppearanceConfig(metal_colour=True, metal_decide=30, metal_start=0.5).validate()
+    AppearanceConfig(metal_colour=True, metal_decide=30, metal_start=0.5, metal_decide_dim=True).validate()
     for bad in (dict(metal_decide=-1), dict(metal_start=1.0), dict(metal_start=-0.1)):
         with pytest.raises(Exception):
             AppearanceConfig(**bad).validate()
@@ -92,6 +92,7 @@ def test_the_fit_decides_its_half_metal_clusters_and_records_it():
     cfg = cpu_profile()
     cfg.epochs, cfg.frames_per_epoch, cfg.texel_size, cfg.image_scale, cfg.clusters = 2, 1, 64, 1.0, 2
     cfg.metal_gate, cfg.metal_start, cfg.metal_decide, cfg.texture_frames, cfg.normal_grid = 0.0, 0.5, 2, 0, 0
+    cfg.metal_decide_dim = True
     res = fit_appearance(sc.vertices, sc.triangles, sc.uvs, sc.camera, sc.rgb, sc.mask, cfg,
                          init_texture=linear_to_srgb(torch.as_tensor(sc.diffuse)).numpy())
     decided = [m["metal_decision"] for m in res.materials if "metal_decision" in m]
@@ -101,3 +102,19 @@ def test_the_fit_decides_its_half_metal_clusters_and_records_it():
     for m in res.materials:
         if m.get("metal_decision", {}).get("decision") == "metal" and m["determined"]:
             assert m["metallic"] == pytest.approx(1.0, abs=1e-6)
+
+
+def test_the_metals_start_light_reflects_what_the_half_metal_did():
+    from saft.appearance.metal_decide import scale_env, specular_ratio
+    from saft.appearance.params import PyramidEnvironmentMap
+
+    for env in (_env(), PyramidEnvironmentMap(8, 16, 3, 0.5)):
+        with torch.no_grad():
+            before = env(1.0).clone()
+        scale_env(env, 0.25)
+        assert torch.allclose(env(1.0), 0.25 * before, rtol=1e-5)
+    model, gold, _ = _model()
+    c = model.metal.colours()[gold].detach()
+    assert specular_ratio(model, gold, 1.0) == pytest.approx(1.0)
+    assert specular_ratio(model, gold, 0.0) == pytest.approx(0.04 / c.max().item(), rel=1e-5)
+    assert specular_ratio(model, gold, 0.2) == pytest.approx((0.8 * 0.04 + 0.2 * c.max().item()) / c.max().item(), rel=1e-5)

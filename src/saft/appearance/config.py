@@ -83,6 +83,11 @@ class AppearanceConfig:
     # the cluster becomes metal, otherwise the fit is left as it was (appearance.metal_decide: a thread is
     # metal or not; the lamé's ended half metal); 0 = off
     metal_decide: int = 0
+    # metal_decide with diffuse_shading="irradiance": the metal's refit starts from the env map scaled by the
+    # cluster's fitted F0 over its metal colour's (the light that reflects what the half metal did; every
+    # diffuse radiance unchanged, its albedo scaled up). Off: on saft's lamé at seed 1 it found the threads
+    # (metallic 0.167 -> 0.069) but lost 1.0 dB diffuse (BENCH_metal4.md)
+    metal_decide_dim: bool = False
     # maps="guided": mean squared colour of the log-gain grid (each cell's channels minus their mean), a
     # prior that ties the gain's colour to grey so the light's colour goes to the env map (0 = off)
     lambda_gain_chroma: float = 0.0

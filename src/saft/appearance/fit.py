@@ -343,7 +343,7 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
                                       f, m["diffuse"], m["roughness"], m["metallic"], e, spp, seed), lin_t[f],
                                       slope_t[f], mask_t[f]), n_frames, cfg.metal_decide,
                                   cfg.lr_texels * cfg.lr_final_factor ** 0.5, cfg.lr_env * cfg.lr_final_factor ** 0.5,
-                                  cfg.evidence_spp, cfg.seed)
+                                  cfg.evidence_spp, cfg.seed, dim=cfg.metal_decide_dim)
         env_now = env(colour_weight(cfg.epochs - 1, cfg.epochs, cfg.grey_fraction, cfg.blend_fraction)).detach()
     if isinstance(model, GuidedMaps) and cfg.evidence_threshold > 0:
         test_frames = [int(f) for f in np.linspace(0, n_frames - 1, min(n_frames, 8)).round()]
