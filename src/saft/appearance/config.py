@@ -72,6 +72,22 @@ class AppearanceConfig:
     # metal_gate, appearance.metal_gate: a metal's highlight has its F0's colour, a dielectric's the light's)
     # get a metal colour; the others keep the default (no colour, the sparsity prior). 0 = every cluster
     metal_gate: float = 0.0
+    # metal_colour: > 0: the clusters given a metal colour start at this metallic instead of init_metallic
+    # (with metal_gate their highlights already keep their colour: the metallic need not travel from ~0);
+    # 0 = off
+    metal_start: float = 0.0
+    # metal_colour: > 0: after the fit, each metal-coloured cluster whose metallic ended in [0.05, 0.95] is
+    # refitted this many epochs twice from the fitted state, its metallic pinned at 1 and at 0, the maps and
+    # the env map (normals as fitted) at the fit's rates of mid-decay (lr_texels, lr_env × √lr_final_factor), on
+    # all frames but 8 evenly spaced ones; where the metal's loss on those 8 is lower than the dielectric's
+    # the cluster becomes metal, otherwise the fit is left as it was (appearance.metal_decide: a thread is
+    # metal or not; the lamé's ended half metal); 0 = off
+    metal_decide: int = 0
+    # metal_decide with diffuse_shading="irradiance": the metal's refit starts from the env map scaled by the
+    # cluster's fitted F0 over its metal colour's (the light that reflects what the half metal did; every
+    # diffuse radiance unchanged, its albedo scaled up). Off: on saft's lamé at seed 1 it found the threads
+    # (metallic 0.167 -> 0.069) but lost 1.0 dB diffuse (BENCH_metal4.md)
+    metal_decide_dim: bool = False
     # maps="guided": mean squared colour of the log-gain grid (each cell's channels minus their mean), a
     # prior that ties the gain's colour to grey so the light's colour goes to the env map (0 = off)
     lambda_gain_chroma: float = 0.0
@@ -151,6 +167,10 @@ class AppearanceConfig:
             bad("normal_grid", "normal_grid, normal_keys, lr_normals and lambda_normals must be >= 0")
         if self.metal_rate <= 0 or self.lambda_metal_blend < 0 or not (0 <= self.metal_gate <= 1):
             bad("metal_rate", "metal_rate must be > 0, lambda_metal_blend >= 0 and metal_gate lie in [0, 1]")
+        if self.metal_decide < 0:
+            bad("metal_decide", "must be >= 0 epochs (0 = off)")
+        if not (0 <= self.metal_start < 1):
+            bad("metal_start", "must lie in [0, 1) (0 = off)")
         if self.gain_grid < 1 or self.clusters < 1:
             bad("clusters", "gain_grid and clusters must be >= 1")
         if self.env_levels < 1 or (self.env_height >> (self.env_levels - 1)) < 1:

@@ -20,6 +20,7 @@ from saft.appearance.evidence import cluster_evidence, undetermined_note
 from saft.appearance.frame_specular import FRAME_GRID, FrameStack, frame_specular
 from saft.appearance.guided import GuidedMaps
 from saft.appearance.irradiance import FrameZeroIrradiance, IrradianceMaps
+from saft.appearance.metal_decide import decide_metals
 from saft.appearance.metal_gate import metal_scores
 from saft.appearance.mitsuba_backend import load_mitsuba
 from saft.appearance.normals import NormalCorrection
@@ -193,7 +194,8 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
                                            cfg.detail_trust)
     if isinstance(model, GuidedMaps) and cfg.metal_colour:   # a metal colour per cluster (appearance.metal)
         scores = metal_scores(model, verts, triangles, uvs, camera, rgb, mask) if cfg.metal_gate > 0 else None
-        model.use_metal_colour(cfg.metal_rate, None if scores is None else scores >= cfg.metal_gate)   # NaN: no
+        model.use_metal_colour(cfg.metal_rate, None if scores is None else scores >= cfg.metal_gate,   # NaN: no
+                               cfg.metal_start or None)
     untrusted = set(left_out or ())
     stack = None   # the frames in texture space that measure frame 0's specular (appearance.frame_specular)
     if isinstance(model, IrradianceMaps) and cfg.frame_specular > 1:
@@ -325,16 +327,26 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
             checkpoint(state(epoch + 1))
 
     evidence = None
+    env_now = env(colour_weight(cfg.epochs - 1, cfg.epochs, cfg.grey_fraction, cfg.blend_fraction)).detach()
+
+    def render_frame(f, d, r, m, e, spp, seed):
+        renderer.set_vertices(verts[f])
+        with torch.no_grad():
+            n = shading(f)
+        return renderer.render(d, r, m, e, spp=spp, seed=seed, normals=n)
+
+    decisions = []   # metal or not per half-metal cluster (appearance.metal_decide)
+    if isinstance(model, GuidedMaps) and cfg.metal_decide > 0:
+        decisions = decide_metals(model, env, colour_weight(cfg.epochs - 1, cfg.epochs, cfg.grey_fraction,
+                                                            cfg.blend_fraction),
+                                  lambda f, m, e, spp, seed: masked_linearised_srgb_mse(render_frame(
+                                      f, m["diffuse"], m["roughness"], m["metallic"], e, spp, seed), lin_t[f],
+                                      slope_t[f], mask_t[f]), n_frames, cfg.metal_decide,
+                                  cfg.lr_texels * cfg.lr_final_factor ** 0.5, cfg.lr_env * cfg.lr_final_factor ** 0.5,
+                                  cfg.evidence_spp, cfg.seed, dim=cfg.metal_decide_dim)
+        env_now = env(colour_weight(cfg.epochs - 1, cfg.epochs, cfg.grey_fraction, cfg.blend_fraction)).detach()
     if isinstance(model, GuidedMaps) and cfg.evidence_threshold > 0:
         test_frames = [int(f) for f in np.linspace(0, n_frames - 1, min(n_frames, 8)).round()]
-        env_now = env(colour_weight(cfg.epochs - 1, cfg.epochs, cfg.grey_fraction, cfg.blend_fraction)).detach()
-
-        def render_frame(f, d, r, m, e, spp, seed):
-            renderer.set_vertices(verts[f])
-            with torch.no_grad():
-                n = shading(f)
-            return renderer.render(d, r, m, e, spp=spp, seed=seed, normals=n)
-
         evidence = cluster_evidence(model, env_now, render_frame, test_frames,
                                     lambda f, img: masked_linearised_srgb_mse(img, lin_t[f], slope_t[f], mask_t[f]),
                                     spp=cfg.evidence_spp, threshold=cfg.evidence_threshold,
@@ -343,6 +355,8 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
             for row, c, a in zip(evidence, model.metal.colours().tolist(), model.metal.allowed.tolist()):
                 row.update(metal_colour=c, metal_allowed=bool(a),
                            **({} if scores is None else {"highlight_colour": float(scores[row["cluster"]])}))
+        for d in decisions:
+            evidence[d["cluster"]]["metal_decision"] = d
     final_state = state(cfg.epochs)
     if checkpoint is not None:
         checkpoint(final_state)

@@ -1,0 +1,144 @@
+"""Metal or not, decided per cluster after the fit (``appearance.metal_decide``, issue 28: the lamé's threads).
+
+The metal colour (appearance.metal) and the gate (appearance.metal_gate) let a cluster be metal, but whether
+it ends metal is left to how far 150 epochs of noisy gradients carry its metallic: the lamé's gold threads
+end at 0.08-0.24 on saft's own motion (a half metal whose diffuse explains most of the frames) and at 0.98
+when found (BENCHMARKS "A metal colour per cluster…": "a question of travel, not of evidence"). A cloth's
+thread is metal or it is not, so each metal-coloured cluster that ends between the two is refitted briefly
+both ways from the fitted state, its metallic pinned at 1 (its metal colour) and at 0 (its texture), with
+the env map (a metal reflects about five times as much light as the half metal the fit ended with; with
+``dim`` and the irradiance-divided diffuse the metal's refit starts from the env map scaled down by that
+ratio, which leaves every diffuse radiance as it was, appearance.irradiance). Where
+the metal's image loss on frames the refits did not see is the lower, the cluster becomes metal; otherwise
+the fit is left as it was: the dielectric refit is the test the metal must pass, not a verdict of its own
+(forced dielectric, the lamé's threads on the true motion at seed 1 lost the half metal the fit had found:
+metallic MAE 0.151 -> 0.178, relit −3 dB; BENCH_metal4.md).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from typing import Callable
+
+import numpy as np
+import torch
+
+from saft.appearance.irradiance import IrradianceMaps
+
+PIN = 20.0   # |metallic logit| of a pinned cluster (sigmoid(±20): 1 and 0 to 2e-9)
+DIELECTRIC_F0 = 0.04   # a dielectric's normal-incidence reflectance (the principled BSDF's specular 0.5)
+
+
+def held_out_frames(n_frames: int, count: int = 8) -> tuple[list[int], list[int]]:
+    """(train, held): `count` evenly spaced frames held out, the rest to refit on (all of them if none is left)."""
+    held = sorted({int(f) for f in np.linspace(0, n_frames - 1, min(n_frames, count)).round()})
+    train = [f for f in range(n_frames) if f not in held]
+    return (train or held), held
+
+
+def specular_ratio(model, k: int, metallic: float) -> float:
+    """Cluster k's F0 (brightest channel) as fitted, 0.04·(1 − m) + m·c, over its F0 as a metal, c: how much
+    less light a metal needs to reflect what the half metal did."""
+    c = model.metal.colours()[k].detach()
+    return float(((1 - metallic) * DIELECTRIC_F0 + metallic * c).max() / c.max())
+
+
+@torch.no_grad()
+def scale_env(env, factor: float) -> None:
+    """The env map's radiance times factor (a pyramid's coarsest log level shifted, a plain map scaled)."""
+    if hasattr(env, "levels"):
+        env.levels[0] += math.log(factor)
+    else:
+        env.data.mul_(factor)
+
+
+def _pin(model, k: int, metal: bool) -> None:
+    with torch.no_grad():
+        model.metal_logit[k] = (PIN if metal else -PIN) / float(model.metal_scale[k])
+
+
+def refit_pinned(model, env, weight: float, frame_loss: Callable, train: list[int], k: int, metal: bool,
+                 epochs: int, lr: float, lr_env: float, batch: int = 3, seed: int = 0) -> None:
+    """`epochs` Adam steps of every map parameter but the detail share (rate lr; appearance.detail decides
+    which frames may teach it) and of the env map (rate lr_env: a metal's reflection is brighter than a half
+    metal's, the light it was fitted with has to follow) on `batch` random frames of `train` each, cluster
+    k's metallic pinned at 1 (metal) or 0; the shading normals stay as fitted.
+
+    env: the env map module, env(weight) the map the renderer gets; frame_loss(frame, maps, env map, spp,
+    seed) → scalar: the image loss of the maps rendered at that frame."""
+    _pin(model, k, metal)
+    params = [p for name, p in model.named_parameters() if name != "detail_logit"]
+    opt = torch.optim.Adam([{"params": params, "lr": lr}, {"params": list(env.parameters()), "lr": lr_env}])
+    rng = np.random.default_rng(seed)
+    for epoch in range(epochs):
+        frames = rng.choice(train, min(batch, len(train)), replace=False)
+        e = env(weight)
+        maps = model(e)
+        leaves = {name: v.detach().requires_grad_(True) for name, v in maps.items()}
+        e_leaf = e.detach().requires_grad_(True)
+        for f in frames:
+            (frame_loss(int(f), leaves, e_leaf, 1, 104_729 + epoch * 1000 + int(f)) / len(frames)).backward()
+        opt.zero_grad(set_to_none=True)
+        names = [n for n in leaves if leaves[n].grad is not None]
+        outs, grads = [maps[n] for n in names], [leaves[n].grad for n in names]
+        if e_leaf.grad is not None:
+            outs, grads = outs + [e], grads + [e_leaf.grad]
+        torch.autograd.backward(outs, grads)
+        for p in params + list(env.parameters()):
+            if p.grad is not None and not torch.isfinite(p.grad).all():
+                p.grad = None   # a Monte Carlo outlier: skip it, as the fit does
+        if model.metal_logit.grad is not None:
+            model.metal_logit.grad[k] = 0.0
+        opt.step()
+        env.clamp_()
+        _pin(model, k, metal)
+
+
+@torch.no_grad()
+def held_out_loss(model, env, weight: float, frame_loss: Callable, held: list[int], spp: int) -> float:
+    """The image loss summed over the held-out frames, each rendered with a fixed seed (the same samples for
+    every alternative, so that the Monte Carlo noise cancels in their difference)."""
+    e = env(weight)
+    maps = model(e)
+    return sum(float(frame_loss(f, maps, e, spp, 7919 + f)) for f in held)
+
+
+def decide_metals(model, env, weight: float, frame_loss: Callable, n_frames: int, epochs: int, lr: float,
+                  lr_env: float, spp: int = 4, seed: int = 0, low: float = 0.05, high: float = 0.95,
+                  dim: bool = False) -> list[dict]:
+    """Each cluster with a metal colour whose metallic lies in [low, high] (largest first) refitted metal and
+    dielectric (refit_pinned) from the model and env map as they are; both keep the metal's state where its
+    held-out loss is the lower, their own otherwise. One dict per cluster decided: its metallic, the held-out losses (fitted, each alternative
+    pinned before and after its refit), the refits' roughness, the decision. In place. dim: the metal's
+    refit starts from the env map scaled by specular_ratio (IrradianceMaps only, module docstring)."""
+    if model.metal is None:
+        return []
+    values = model.cluster_values()["metallic"].detach()
+    allowed = model.metal.allowed.bool()
+    todo = [k for k in range(model.num_clusters) if allowed[k] and low <= float(values[k]) <= high]
+    todo.sort(key=lambda k: -float(model.area[k]))
+    train, held = held_out_frames(n_frames)
+    out = []
+    for k in todo:
+        start = copy.deepcopy((model.state_dict(), env.state_dict()))
+        row = {"cluster": k, "metallic_fitted": float(values[k]),
+               "held_loss_fitted": held_out_loss(model, env, weight, frame_loss, held, spp)}
+        states, losses = {}, {}
+        for metal, name in ((True, "metal"), (False, "dielectric")):
+            model.load_state_dict(start[0])
+            env.load_state_dict(start[1])
+            _pin(model, k, metal)
+            if dim and metal and isinstance(model, IrradianceMaps):   # the metal starts from the light that reflects
+                row["env_scale"] = specular_ratio(model, k, float(values[k]))   # what the half metal did; the
+                scale_env(env, row["env_scale"])   # diffuse, divided by that light's irradiance, stays as it was
+            row[f"held_loss_{name}_unfitted"] = held_out_loss(model, env, weight, frame_loss, held, spp)
+            refit_pinned(model, env, weight, frame_loss, train, k, metal, epochs, lr, lr_env, seed=seed + k)
+            losses[metal] = row[f"held_loss_{name}"] = held_out_loss(model, env, weight, frame_loss, held, spp)
+            row[f"roughness_{name}"] = float(model.cluster_values()["roughness"][k].detach())
+            states[metal] = copy.deepcopy((model.state_dict(), env.state_dict()))
+        keep = states[True] if losses[True] < losses[False] else start   # metal, or as the fit left it
+        model.load_state_dict(keep[0])
+        env.load_state_dict(keep[1])
+        out.append({**row, "decision": "metal" if keep is states[True] else "as fitted"})
+    return out

@@ -1,0 +1,120 @@
+"""Metal or not per cluster after the fit (appearance.metal_decide) and the metal clusters' start (metal_start)."""
+
+import numpy as np
+import pytest
+import torch
+
+from saft.appearance.config import AppearanceConfig
+from saft.appearance.guided import GuidedMaps
+from saft.appearance.metal_decide import decide_metals, held_out_frames
+from saft.appearance.params import EnvironmentMap
+
+torch.set_num_threads(1)
+
+
+def _model(metallic=0.3):
+    tex = np.full((16, 16, 3), [0.08, 0.06, 0.02], np.float32)   # dark gold (a metal's frame-0 diffuse)
+    tex[:, 8:] = [0.05, 0.06, 0.18]                              # dark blue cloth
+    model = GuidedMaps(tex, size=16, gain_grid=2, clusters=2, init_roughness=0.3, init_metallic=metallic)
+    gold = int(model.members[:, 0, 0].argmax())
+    model.use_metal_colour(rate=3.0, allowed=np.arange(2) == gold)
+    return model, gold, tex
+
+
+def _loss_to(target):
+    """A 'render' that is the base colour itself: the loss is its squared distance to target (S, S, 3)."""
+    target = torch.as_tensor(target)
+    return lambda f, maps, env, spp, seed: ((maps["diffuse"] - target) ** 2).mean()
+
+
+def _env():
+    return EnvironmentMap(4, 8, 0.5, 0.01)
+
+
+def test_held_out_frames_split_the_clip():
+    train, held = held_out_frames(32)
+    assert len(held) == 8 and held[0] == 0 and held[-1] == 31 and not set(train) & set(held)
+    assert sorted(train + held) == list(range(32))
+    assert held_out_frames(4) == ([0, 1, 2, 3], [0, 1, 2, 3])   # nothing left to refit on: all of them
+
+
+def test_a_bright_gold_cluster_becomes_metal_and_a_dark_one_stays_as_fitted():
+    model, gold, tex = _model()
+    bright = tex.copy()
+    bright[:, :8] = [0.9, 0.7, 0.3]   # the frames show the gold cluster as bright as a metal's F0
+    rows = decide_metals(model, _env(), 1.0, _loss_to(bright), 12, epochs=20, lr=0.05, lr_env=0.05)
+    assert [r["decision"] for r in rows] == ["metal"] and rows[0]["cluster"] == gold
+    assert rows[0]["held_loss_metal"] < rows[0]["held_loss_dielectric"]
+    assert model.cluster_values()["metallic"][gold].item() == pytest.approx(1.0, abs=1e-6)
+
+    model, gold, tex = _model()
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    rows = decide_metals(model, _env(), 1.0, _loss_to(tex), 12, epochs=20, lr=0.05, lr_env=0.05)   # the frames show its texture
+    assert [r["decision"] for r in rows] == ["as fitted"] and rows[0]["held_loss_dielectric"] < rows[0]["held_loss_metal"]
+    assert all(torch.equal(before[k], v) for k, v in model.state_dict().items())   # the fit left as it was
+
+
+def test_only_half_metal_clusters_with_a_metal_colour_are_decided():
+    for metallic in (0.01, 0.99):   # already dielectric or metal: left as fitted
+        model, gold, tex = _model(metallic)
+        before = {k: v.clone() for k, v in model.state_dict().items()}
+        assert decide_metals(model, _env(), 1.0, _loss_to(tex), 12, epochs=5, lr=0.05, lr_env=0.05) == []
+        assert all(torch.equal(before[k], v) for k, v in model.state_dict().items())
+    plain = GuidedMaps(_model()[2], size=16, gain_grid=2, clusters=2, init_metallic=0.3)   # no metal colour
+    assert decide_metals(plain, _env(), 1.0, _loss_to(_model()[2]), 12, epochs=5, lr=0.05, lr_env=0.05) == []
+
+
+def test_metal_start_sets_only_the_metal_clusters_metallic():
+    tex = _model()[2]
+    model = GuidedMaps(tex, size=16, gain_grid=2, clusters=2, init_metallic=0.1)
+    gold = int(model.members[:, 0, 0].argmax())
+    model.use_metal_colour(rate=3.0, allowed=np.arange(2) == gold, start=0.5)
+    m = model.cluster_values()["metallic"]
+    assert m[gold].item() == pytest.approx(0.5, abs=1e-6) and m[1 - gold].item() == pytest.approx(0.1, abs=1e-6)
+
+
+def test_metal_decide_and_start_validate():
+    AppearanceConfig(metal_colour=True, metal_decide=30, metal_start=0.5, metal_decide_dim=True).validate()
+    for bad in (dict(metal_decide=-1), dict(metal_start=1.0), dict(metal_start=-0.1)):
+        with pytest.raises(Exception):
+            AppearanceConfig(**bad).validate()
+
+
+def test_the_fit_decides_its_half_metal_clusters_and_records_it():
+    """End to end on a tiny scene: every cluster has a metal colour (no gate) and starts half metal, so
+    each is decided; appearance.json's materials carry the decision and its held-out losses."""
+    from saft.appearance.config import cpu_profile
+    from saft.appearance.fit import fit_appearance
+    from saft.appearance.params import linear_to_srgb
+    from saft.synthetic.appearance import make_scene
+
+    sc = make_scene(n_frames=2, image_size=32, map_size=32, render_spp=16)
+    cfg = cpu_profile()
+    cfg.epochs, cfg.frames_per_epoch, cfg.texel_size, cfg.image_scale, cfg.clusters = 2, 1, 64, 1.0, 2
+    cfg.metal_gate, cfg.metal_start, cfg.metal_decide, cfg.texture_frames, cfg.normal_grid = 0.0, 0.5, 2, 0, 0
+    cfg.metal_decide_dim = True
+    res = fit_appearance(sc.vertices, sc.triangles, sc.uvs, sc.camera, sc.rgb, sc.mask, cfg,
+                         init_texture=linear_to_srgb(torch.as_tensor(sc.diffuse)).numpy())
+    decided = [m["metal_decision"] for m in res.materials if "metal_decision" in m]
+    assert decided and all(d["decision"] in ("metal", "as fitted") for d in decided)
+    assert all(np.isfinite([d["held_loss_metal"], d["held_loss_dielectric"], d["held_loss_fitted"]]).all()
+               for d in decided)
+    for m in res.materials:
+        if m.get("metal_decision", {}).get("decision") == "metal" and m["determined"]:
+            assert m["metallic"] == pytest.approx(1.0, abs=1e-6)
+
+
+def test_the_metals_start_light_reflects_what_the_half_metal_did():
+    from saft.appearance.metal_decide import scale_env, specular_ratio
+    from saft.appearance.params import PyramidEnvironmentMap
+
+    for env in (_env(), PyramidEnvironmentMap(8, 16, 3, 0.5)):
+        with torch.no_grad():
+            before = env(1.0).clone()
+        scale_env(env, 0.25)
+        assert torch.allclose(env(1.0), 0.25 * before, rtol=1e-5)
+    model, gold, _ = _model()
+    c = model.metal.colours()[gold].detach()
+    assert specular_ratio(model, gold, 1.0) == pytest.approx(1.0)
+    assert specular_ratio(model, gold, 0.0) == pytest.approx(0.04 / c.max().item(), rel=1e-5)
+    assert specular_ratio(model, gold, 0.2) == pytest.approx((0.8 * 0.04 + 0.2 * c.max().item()) / c.max().item(), rel=1e-5)
