@@ -1,4 +1,4 @@
-"""Metal or not per cluster after the fit (appearance.metal_decide) and the metal clusters' start (metal_start)."""
+"""Metal or not per cluster after the fit (appearance.metal_decide)."""
 
 import numpy as np
 import pytest
@@ -64,20 +64,13 @@ def test_only_half_metal_clusters_with_a_metal_colour_are_decided():
     assert decide_metals(plain, _env(), 1.0, _loss_to(_model()[2]), 12, epochs=5, lr=0.05, lr_env=0.05) == []
 
 
-def test_metal_start_sets_only_the_metal_clusters_metallic():
-    tex = _model()[2]
-    model = GuidedMaps(tex, size=16, gain_grid=2, clusters=2, init_metallic=0.1)
-    gold = int(model.members[:, 0, 0].argmax())
-    model.use_metal_colour(rate=3.0, allowed=np.arange(2) == gold, start=0.5)
-    m = model.cluster_values()["metallic"]
-    assert m[gold].item() == pytest.approx(0.5, abs=1e-6) and m[1 - gold].item() == pytest.approx(0.1, abs=1e-6)
+def test_metal_decide_validates_and_the_profiles_decide():
+    from saft.appearance.config import cpu_profile
 
-
-def test_metal_decide_and_start_validate():
-    AppearanceConfig(metal_colour=True, metal_decide=30, metal_start=0.5, metal_decide_dim=True).validate()
-    for bad in (dict(metal_decide=-1), dict(metal_start=1.0), dict(metal_start=-0.1)):
-        with pytest.raises(Exception):
-            AppearanceConfig(**bad).validate()
+    AppearanceConfig(metal_colour=True, metal_decide=30).validate()
+    with pytest.raises(Exception):
+        AppearanceConfig(metal_decide=-1).validate()
+    assert cpu_profile().metal_decide == 30
 
 
 def test_the_fit_decides_its_half_metal_clusters_and_records_it():
@@ -91,8 +84,7 @@ def test_the_fit_decides_its_half_metal_clusters_and_records_it():
     sc = make_scene(n_frames=2, image_size=32, map_size=32, render_spp=16)
     cfg = cpu_profile()
     cfg.epochs, cfg.frames_per_epoch, cfg.texel_size, cfg.image_scale, cfg.clusters = 2, 1, 64, 1.0, 2
-    cfg.metal_gate, cfg.metal_start, cfg.metal_decide, cfg.texture_frames, cfg.normal_grid = 0.0, 0.5, 2, 0, 0
-    cfg.metal_decide_dim = True
+    cfg.metal_gate, cfg.init_metallic, cfg.metal_decide, cfg.texture_frames, cfg.normal_grid = 0.0, 0.5, 2, 0, 0
     res = fit_appearance(sc.vertices, sc.triangles, sc.uvs, sc.camera, sc.rgb, sc.mask, cfg,
                          init_texture=linear_to_srgb(torch.as_tensor(sc.diffuse)).numpy())
     decided = [m["metal_decision"] for m in res.materials if "metal_decision" in m]
@@ -102,19 +94,3 @@ def test_the_fit_decides_its_half_metal_clusters_and_records_it():
     for m in res.materials:
         if m.get("metal_decision", {}).get("decision") == "metal" and m["determined"]:
             assert m["metallic"] == pytest.approx(1.0, abs=1e-6)
-
-
-def test_the_metals_start_light_reflects_what_the_half_metal_did():
-    from saft.appearance.metal_decide import scale_env, specular_ratio
-    from saft.appearance.params import PyramidEnvironmentMap
-
-    for env in (_env(), PyramidEnvironmentMap(8, 16, 3, 0.5)):
-        with torch.no_grad():
-            before = env(1.0).clone()
-        scale_env(env, 0.25)
-        assert torch.allclose(env(1.0), 0.25 * before, rtol=1e-5)
-    model, gold, _ = _model()
-    c = model.metal.colours()[gold].detach()
-    assert specular_ratio(model, gold, 1.0) == pytest.approx(1.0)
-    assert specular_ratio(model, gold, 0.0) == pytest.approx(0.04 / c.max().item(), rel=1e-5)
-    assert specular_ratio(model, gold, 0.2) == pytest.approx((0.8 * 0.04 + 0.2 * c.max().item()) / c.max().item(), rel=1e-5)

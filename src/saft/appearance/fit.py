@@ -194,8 +194,7 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
                                            cfg.detail_trust)
     if isinstance(model, GuidedMaps) and cfg.metal_colour:   # a metal colour per cluster (appearance.metal)
         scores = metal_scores(model, verts, triangles, uvs, camera, rgb, mask) if cfg.metal_gate > 0 else None
-        model.use_metal_colour(cfg.metal_rate, None if scores is None else scores >= cfg.metal_gate,   # NaN: no
-                               cfg.metal_start or None)
+        model.use_metal_colour(cfg.metal_rate, None if scores is None else scores >= cfg.metal_gate)   # NaN: no
     untrusted = set(left_out or ())
     stack = None   # the frames in texture space that measure frame 0's specular (appearance.frame_specular)
     if isinstance(model, IrradianceMaps) and cfg.frame_specular > 1:
@@ -343,7 +342,7 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
                                       f, m["diffuse"], m["roughness"], m["metallic"], e, spp, seed), lin_t[f],
                                       slope_t[f], mask_t[f]), n_frames, cfg.metal_decide,
                                   cfg.lr_texels * cfg.lr_final_factor ** 0.5, cfg.lr_env * cfg.lr_final_factor ** 0.5,
-                                  cfg.evidence_spp, cfg.seed, dim=cfg.metal_decide_dim)
+                                  cfg.evidence_spp, cfg.seed)
         env_now = env(colour_weight(cfg.epochs - 1, cfg.epochs, cfg.grey_fraction, cfg.blend_fraction)).detach()
     if isinstance(model, GuidedMaps) and cfg.evidence_threshold > 0:
         test_frames = [int(f) for f in np.linspace(0, n_frames - 1, min(n_frames, 8)).round()]

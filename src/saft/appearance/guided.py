@@ -142,19 +142,15 @@ class GuidedMaps(nn.Module):
         return {"roughness": torch.einsum("k,khw->hw", vals["roughness"], self.members),
                 "metallic": torch.einsum("k,khw->hw", vals["metallic"], self.members)}
 
-    def use_metal_colour(self, rate: float = 1.0, allowed=None, start: float | None = None) -> None:
+    def use_metal_colour(self, rate: float = 1.0, allowed=None) -> None:
         """Give each cluster (or the `allowed` (K,) bool ones) a bright metal colour of its own
-        (appearance.metal), its metallic moving `rate` times as fast and starting at `start` (None: where
-        it is)."""
+        (appearance.metal), its metallic moving `rate` times as fast."""
         k = self.num_clusters
         allowed = np.ones(k, bool) if allowed is None else np.asarray(allowed, bool)
         mean = (torch.einsum("khw,hwc->kc", self.members, self.texture) / self.members.sum((1, 2))[:, None].clamp_min(1))
         self.metal = MetalColour(mean.cpu().numpy(), allowed).to(self.texture.device)
         with torch.no_grad():
-            mask = torch.as_tensor(allowed, device=self.texture.device)
-            scale = torch.where(mask, float(rate), 1.0)
-            if start is not None:
-                self.metal_logit.copy_(torch.where(mask, logit(start), self.metal_logit))
+            scale = torch.where(torch.as_tensor(allowed, device=self.texture.device), float(rate), 1.0)
             self.metal_logit /= scale
             self.metal_scale.copy_(scale)
 

@@ -7,27 +7,22 @@ when found (BENCHMARKS "A metal colour per cluster…": "a question of travel, n
 thread is metal or it is not, so each metal-coloured cluster that ends between the two is refitted briefly
 both ways from the fitted state, its metallic pinned at 1 (its metal colour) and at 0 (its texture), with
 the env map (a metal reflects about five times as much light as the half metal the fit ended with; with
-``dim`` and the irradiance-divided diffuse the metal's refit starts from the env map scaled down by that
-ratio, which leaves every diffuse radiance as it was, appearance.irradiance). Where
+the light held, the metal never won: BENCHMARKS.md "The lamé's gold threads as metal…"). Where
 the metal's image loss on frames the refits did not see is the lower, the cluster becomes metal; otherwise
 the fit is left as it was: the dielectric refit is the test the metal must pass, not a verdict of its own
 (forced dielectric, the lamé's threads on the true motion at seed 1 lost the half metal the fit had found:
-metallic MAE 0.151 -> 0.178, relit −3 dB; BENCH_metal4.md).
+metallic MAE 0.151 -> 0.178, relit −3 dB; BENCHMARKS.md "The lamé's gold threads as metal…").
 """
 
 from __future__ import annotations
 
 import copy
-import math
 from typing import Callable
 
 import numpy as np
 import torch
 
-from saft.appearance.irradiance import IrradianceMaps
-
 PIN = 20.0   # |metallic logit| of a pinned cluster (sigmoid(±20): 1 and 0 to 2e-9)
-DIELECTRIC_F0 = 0.04   # a dielectric's normal-incidence reflectance (the principled BSDF's specular 0.5)
 
 
 def held_out_frames(n_frames: int, count: int = 8) -> tuple[list[int], list[int]]:
@@ -35,22 +30,6 @@ def held_out_frames(n_frames: int, count: int = 8) -> tuple[list[int], list[int]
     held = sorted({int(f) for f in np.linspace(0, n_frames - 1, min(n_frames, count)).round()})
     train = [f for f in range(n_frames) if f not in held]
     return (train or held), held
-
-
-def specular_ratio(model, k: int, metallic: float) -> float:
-    """Cluster k's F0 (brightest channel) as fitted, 0.04·(1 − m) + m·c, over its F0 as a metal, c: how much
-    less light a metal needs to reflect what the half metal did."""
-    c = model.metal.colours()[k].detach()
-    return float(((1 - metallic) * DIELECTRIC_F0 + metallic * c).max() / c.max())
-
-
-@torch.no_grad()
-def scale_env(env, factor: float) -> None:
-    """The env map's radiance times factor (a pyramid's coarsest log level shifted, a plain map scaled)."""
-    if hasattr(env, "levels"):
-        env.levels[0] += math.log(factor)
-    else:
-        env.data.mul_(factor)
 
 
 def _pin(model, k: int, metal: bool) -> None:
@@ -105,13 +84,11 @@ def held_out_loss(model, env, weight: float, frame_loss: Callable, held: list[in
 
 
 def decide_metals(model, env, weight: float, frame_loss: Callable, n_frames: int, epochs: int, lr: float,
-                  lr_env: float, spp: int = 4, seed: int = 0, low: float = 0.05, high: float = 0.95,
-                  dim: bool = False) -> list[dict]:
+                  lr_env: float, spp: int = 4, seed: int = 0, low: float = 0.05, high: float = 0.95) -> list[dict]:
     """Each cluster with a metal colour whose metallic lies in [low, high] (largest first) refitted metal and
     dielectric (refit_pinned) from the model and env map as they are; both keep the metal's state where its
     held-out loss is the lower, their own otherwise. One dict per cluster decided: its metallic, the held-out losses (fitted, each alternative
-    pinned before and after its refit), the refits' roughness, the decision. In place. dim: the metal's
-    refit starts from the env map scaled by specular_ratio (IrradianceMaps only, module docstring)."""
+    pinned before and after its refit), the refits' roughness, the decision. In place."""
     if model.metal is None:
         return []
     values = model.cluster_values()["metallic"].detach()
@@ -129,9 +106,6 @@ def decide_metals(model, env, weight: float, frame_loss: Callable, n_frames: int
             model.load_state_dict(start[0])
             env.load_state_dict(start[1])
             _pin(model, k, metal)
-            if dim and metal and isinstance(model, IrradianceMaps):   # the metal starts from the light that reflects
-                row["env_scale"] = specular_ratio(model, k, float(values[k]))   # what the half metal did; the
-                scale_env(env, row["env_scale"])   # diffuse, divided by that light's irradiance, stays as it was
             row[f"held_loss_{name}_unfitted"] = held_out_loss(model, env, weight, frame_loss, held, spp)
             refit_pinned(model, env, weight, frame_loss, train, k, metal, epochs, lr, lr_env, seed=seed + k)
             losses[metal] = row[f"held_loss_{name}"] = held_out_loss(model, env, weight, frame_loss, held, spp)
