@@ -326,7 +326,7 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
             checkpoint(state(epoch + 1))
 
     evidence = None
-    env_now = env(colour_weight(cfg.epochs - 1, cfg.epochs, cfg.grey_fraction, cfg.blend_fraction)).detach()
+    final_weight = colour_weight(cfg.epochs - 1, cfg.epochs, cfg.grey_fraction, cfg.blend_fraction)
 
     def render_frame(f, d, r, m, e, spp, seed):
         renderer.set_vertices(verts[f])
@@ -336,14 +336,13 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
 
     decisions = []   # metal or not per half-metal cluster (appearance.metal_decide)
     if isinstance(model, GuidedMaps) and cfg.metal_decide > 0:
-        decisions = decide_metals(model, env, colour_weight(cfg.epochs - 1, cfg.epochs, cfg.grey_fraction,
-                                                            cfg.blend_fraction),
+        decisions = decide_metals(model, env, final_weight,
                                   lambda f, m, e, spp, seed: masked_linearised_srgb_mse(render_frame(
                                       f, m["diffuse"], m["roughness"], m["metallic"], e, spp, seed), lin_t[f],
                                       slope_t[f], mask_t[f]), n_frames, cfg.metal_decide,
                                   cfg.lr_texels * cfg.lr_final_factor ** 0.5, cfg.lr_env * cfg.lr_final_factor ** 0.5,
                                   cfg.evidence_spp, cfg.seed)
-        env_now = env(colour_weight(cfg.epochs - 1, cfg.epochs, cfg.grey_fraction, cfg.blend_fraction)).detach()
+    env_now = env(final_weight).detach()   # after the decisions, which refit the env map
     if isinstance(model, GuidedMaps) and cfg.evidence_threshold > 0:
         test_frames = [int(f) for f in np.linspace(0, n_frames - 1, min(n_frames, 8)).round()]
         evidence = cluster_evidence(model, env_now, render_frame, test_frames,
@@ -360,7 +359,7 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
     if checkpoint is not None:
         checkpoint(final_state)
     with torch.no_grad():
-        env_final = env(colour_weight(cfg.epochs - 1, cfg.epochs, cfg.grey_fraction, cfg.blend_fraction))
+        env_final = env(final_weight)
         maps = model(env_final)
         out_shape = (cfg.env_output_height, cfg.env_output_width)
         if tuple(env_final.shape[:2]) != out_shape:
