@@ -20,7 +20,7 @@ from saft.appearance.evidence import cluster_evidence, undetermined_note
 from saft.appearance.frame_specular import FRAME_GRID, FrameStack, frame_specular
 from saft.appearance.guided import GuidedMaps
 from saft.appearance.irradiance import FrameZeroIrradiance, IrradianceMaps
-from saft.appearance.metal_decide import decide_metals
+from saft.appearance.metal_decide import decide_metals, held_out_frames
 from saft.appearance.metal_gate import metal_scores
 from saft.appearance.mitsuba_backend import load_mitsuba
 from saft.appearance.normals import NormalCorrection
@@ -334,19 +334,20 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
             n = shading(f)
         return renderer.render(d, r, m, e, spp=spp, seed=seed, normals=n)
 
+    def frame_error(f, img):   # the fit's image loss of a render of frame f
+        return masked_linearised_srgb_mse(img, lin_t[f], slope_t[f], mask_t[f])
+
     decisions = []   # metal or not per half-metal cluster (appearance.metal_decide)
     if isinstance(model, GuidedMaps) and cfg.metal_decide > 0:
         decisions = decide_metals(model, env, final_weight,
-                                  lambda f, m, e, spp, seed: masked_linearised_srgb_mse(render_frame(
-                                      f, m["diffuse"], m["roughness"], m["metallic"], e, spp, seed), lin_t[f],
-                                      slope_t[f], mask_t[f]), n_frames, cfg.metal_decide,
+                                  lambda f, m, e, spp, seed: frame_error(f, render_frame(
+                                      f, m["diffuse"], m["roughness"], m["metallic"], e, spp, seed)),
+                                  n_frames, cfg.metal_decide,
                                   cfg.lr_texels * cfg.lr_final_factor ** 0.5, cfg.lr_env * cfg.lr_final_factor ** 0.5,
                                   cfg.evidence_spp, cfg.seed)
     env_now = env(final_weight).detach()   # after the decisions, which refit the env map
     if isinstance(model, GuidedMaps) and cfg.evidence_threshold > 0:
-        test_frames = [int(f) for f in np.linspace(0, n_frames - 1, min(n_frames, 8)).round()]
-        evidence = cluster_evidence(model, env_now, render_frame, test_frames,
-                                    lambda f, img: masked_linearised_srgb_mse(img, lin_t[f], slope_t[f], mask_t[f]),
+        evidence = cluster_evidence(model, env_now, render_frame, held_out_frames(n_frames)[1], frame_error,
                                     spp=cfg.evidence_spp, threshold=cfg.evidence_threshold,
                                     band=cfg.undetermined_roughness == "band")
         if model.metal is not None:   # each cluster's metal colour, and the gate's verdict

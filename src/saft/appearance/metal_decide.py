@@ -26,7 +26,8 @@ PIN = 20.0   # |metallic logit| of a pinned cluster (sigmoid(±20): 1 and 0 to 2
 
 
 def held_out_frames(n_frames: int, count: int = 8) -> tuple[list[int], list[int]]:
-    """(train, held): `count` evenly spaced frames held out, the rest to refit on (all of them if none is left)."""
+    """(train, held): `count` evenly spaced frames held out (also the frames the evidence test scores,
+    appearance.evidence), the rest to refit on (all of them if none is left)."""
     held = sorted({int(f) for f in np.linspace(0, n_frames - 1, min(n_frames, count)).round()})
     train = [f for f in range(n_frames) if f not in held]
     return (train or held), held
@@ -87,8 +88,9 @@ def decide_metals(model, env, weight: float, frame_loss: Callable, n_frames: int
                   lr_env: float, spp: int = 4, seed: int = 0, low: float = 0.05, high: float = 0.95) -> list[dict]:
     """Each cluster with a metal colour whose metallic lies in [low, high] (largest first) refitted metal and
     dielectric (refit_pinned) from the model and env map as they are; both keep the metal's state where its
-    held-out loss is the lower, their own otherwise. One dict per cluster decided: its metallic, the held-out losses (fitted, each alternative
-    pinned before and after its refit), the refits' roughness, the decision. In place."""
+    held-out loss is the lower, their own otherwise. One dict per cluster decided: its metallic, the held-out
+    losses (fitted, each alternative pinned before and after its refit), the refits' roughness, the decision.
+    In place."""
     if model.metal is None:
         return []
     values = model.cluster_values()["metallic"].detach()
