@@ -21,14 +21,23 @@ from __future__ import annotations
 import torch
 
 
+def _triangle_terms(x: torch.Tensor, v: torch.Tensor, triangles: torch.Tensor):
+    """Per triangle (T, ·): the edges e1 = b − a, e2 = d − a, N = e1 × e2 (|N| = 2 area), the mean corner
+    velocity w, un = N·w (|N| u) and nn = N·N (floored), the last two (T, 1): what the force and its adjoint
+    share."""
+    i0, i1, i2 = triangles[:, 0], triangles[:, 1], triangles[:, 2]
+    e1, e2 = x[i1] - x[i0], x[i2] - x[i0]
+    N = torch.linalg.cross(e1, e2)
+    w = (v[i0] + v[i1] + v[i2]) / 3.0
+    un = (N * w).sum(dim=1, keepdim=True)
+    nn = (N * N).sum(dim=1, keepdim=True).clamp_min(torch.finfo(x.dtype).tiny)
+    return e1, e2, N, w, un, nn
+
+
 def drag_force(x: torch.Tensor, v: torch.Tensor, triangles: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
     """(V, 3) drag force on every vertex at positions x, velocities v (V, 3); c: the coefficient (0-dim, kg/m^3)."""
-    a, b, d = x[triangles[:, 0]], x[triangles[:, 1]], x[triangles[:, 2]]
-    N = torch.linalg.cross(b - a, d - a)                                   # (T, 3), |N| = 2 area
-    w = (v[triangles[:, 0]] + v[triangles[:, 1]] + v[triangles[:, 2]]) / 3.0
-    un = (N * w).sum(dim=1)                                                # |N| u
-    nn = (N * N).sum(dim=1).clamp_min(torch.finfo(x.dtype).tiny)
-    f = (-0.5 * c) * N * (un.abs() * un / nn)[:, None]                     # (T, 3), per triangle
+    _, _, N, _, un, nn = _triangle_terms(x, v, triangles)
+    f = (-0.5 * c) * N * (un.abs() * un / nn)                              # (T, 3), per triangle
     share = (f / 3.0).repeat_interleave(3, dim=0)
     return torch.zeros_like(x).index_add_(0, triangles.reshape(-1), share)
 
@@ -40,13 +49,8 @@ def drag_vjp(x: torch.Tensor, v: torch.Tensor, triangles: torch.Tensor, c: torch
     Per triangle, with L = lam's corner mean, p = L.N, un = N.w, s = |un| un, nn = N.N, the term is
     -c/2 p s / nn: d/dw = -c p |un| / nn N; d/dN = -c/2 (s / nn L + 2 p |un| / nn w - 2 p s / nn^2 N); and
     N = e1 x e2 (e1 = b - a, e2 = d - a) gives d/de1 = e2 x gN, d/de2 = gN x e1."""
-    i0, i1, i2 = triangles[:, 0], triangles[:, 1], triangles[:, 2]
-    e1, e2 = x[i1] - x[i0], x[i2] - x[i0]
-    N = torch.linalg.cross(e1, e2)
-    w = (v[i0] + v[i1] + v[i2]) / 3.0
-    L = (lam[i0] + lam[i1] + lam[i2]) / 3.0
-    un = (N * w).sum(dim=1, keepdim=True)
-    nn = (N * N).sum(dim=1, keepdim=True).clamp_min(torch.finfo(x.dtype).tiny)
+    e1, e2, N, w, un, nn = _triangle_terms(x, v, triangles)
+    L = (lam[triangles[:, 0]] + lam[triangles[:, 1]] + lam[triangles[:, 2]]) / 3.0
     p = (L * N).sum(dim=1, keepdim=True)
     au = un.abs()
     s = au * un
