@@ -28,15 +28,15 @@ from scipy.spatial import cKDTree
 from saft.evaluate import ground_truth_spec_for
 from saft.evaluate.evaluate import read_result_mesh
 from saft.evaluate.ground_truth import load_ground_truth_frames
-from saft.evaluate.metrics import frame_rng, sample_surface
+from saft.evaluate.metrics import CD2, frame_metrics, frame_rng
 from saft.scene import load_scene
 
 SAMPLES = 8000  # surface samples and GT points per optimisation step (the score itself uses all GT points)
 
 
-def chamfer2(samples: np.ndarray, gt: np.ndarray) -> float:
-    """CD2 as the paper sums it, in 1e-4 m²."""
-    return float(((cKDTree(samples).query(gt)[0] ** 2).mean() + (cKDTree(gt).query(samples)[0] ** 2).mean()) * 1e4)
+def scored_cd2(vertices: np.ndarray, triangles: np.ndarray, gt: np.ndarray, frame: int) -> float:
+    """CD2 (1e-4 m²) of one frame exactly as `saft evaluate` scores it (seed 0)."""
+    return frame_metrics(vertices, triangles, gt, frame_rng(0, frame))[CD2]
 
 
 def mesh_edges(triangles: np.ndarray) -> np.ndarray:
@@ -60,7 +60,8 @@ def fit_to_cloud(vertices: np.ndarray, triangles: np.ndarray, gt: np.ndarray, re
     for _ in range(steps):
         x = start + (step if ray is None else step[:, None] * ray)
         corners = x[tris]
-        area = torch.linalg.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]).norm(dim=1).detach().numpy()
+        area = torch.linalg.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]).norm(dim=1)
+        area = area.detach().numpy()
         which = rng.choice(len(triangles), SAMPLES, p=area / area.sum())
         r = rng.random((SAMPLES, 2))
         s = np.sqrt(r[:, 0])
@@ -69,7 +70,8 @@ def fit_to_cloud(vertices: np.ndarray, triangles: np.ndarray, gt: np.ndarray, re
         picked = gt_t[rng.choice(len(gt), min(SAMPLES, len(gt)), replace=False)]
         nearest_sample = cKDTree(samples.detach().numpy()).query(picked.numpy())[1]
         nearest_gt = gt_tree.query(samples.detach().numpy())[1]
-        loss = ((picked - samples[nearest_sample]) ** 2).sum(1).mean() + ((samples - gt_t[nearest_gt]) ** 2).sum(1).mean()
+        loss = (((picked - samples[nearest_sample]) ** 2).sum(1).mean()
+                + ((samples - gt_t[nearest_gt]) ** 2).sum(1).mean())
         lengths = (x[edges[:, 0]] - x[edges[:, 1]]).norm(dim=1)
         strain = (lengths - rest) / rest
         loss = loss + edge_weight * 1e-4 * (strain ** 2).mean()
@@ -107,7 +109,7 @@ def main() -> None:
     rows = []
     for f in frames:
         gt, vertices = gts[f], read_result_mesh(files[f]).vertices
-        before = chamfer2(sample_surface(vertices, triangles, len(gt), frame_rng(0, f)), gt)
+        before = scored_cd2(vertices, triangles, gt, f)
         rays = None
         if a.along_rays:
             rays = vertices - centre
@@ -116,7 +118,7 @@ def main() -> None:
         if a.save:
             a.save.mkdir(parents=True, exist_ok=True)
             np.save(a.save / f"floor_{f:03d}.npy", moved)
-        floor = chamfer2(sample_surface(moved, triangles, len(gt), frame_rng(0, f)), gt)
+        floor = scored_cd2(moved, triangles, gt, f)
         rows.append(dict(frame=f, cd2=before, floor=floor, strain_median=float(np.median(strain)),
                          strain_p95=float(np.percentile(strain, 95))))
         print(f"frame {f:3d}  CD2 {before:.3f}  floor {floor:.3f}  strain median {rows[-1]['strain_median']:.3f} "
