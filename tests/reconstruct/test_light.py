@@ -40,9 +40,12 @@ class _Ctx:
     """The part of a PhaseContext plain_cloth reads: frame 0, the camera, a render with depth."""
 
     def __init__(self, rgb0, template, camera):
+        from saft.scene.mesh import quad_triangles
         self.target_rgb = torch.as_tensor(rgb0[None], dtype=torch.float32)
         self.target_mask = torch.ones(1, *rgb0.shape[:2])
         self.template_positions = template
+        self.triangles = torch.as_tensor(quad_triangles(np.array([[0, 1, 4, 3], [1, 2, 5, 4], [3, 4, 7, 6],
+                                                                   [4, 5, 8, 7]])), dtype=torch.int32)
         self.camera = camera
 
     def render(self, vertices, texture):
@@ -81,15 +84,18 @@ def test_plain_shading_keeps_the_light_and_weighs_the_tracks_down_on_a_plain_clo
         else:
             assert state.params.light is not None and "light" in state.optimizer.specs
             assert out.strength < 0.5
-    ctx, template, tracks = _plain_or_textured(False)              # a plain cloth in a clip that starts moving:
-    mask = torch.zeros(4, 64, 64)                                   # the silhouette jumps from frame 0 to 1
-    mask[0, 10:50, 10:50] = 1
+    mask = torch.zeros(4, 64, 64)                                   # a clip that starts moving:
+    mask[0, 10:50, 10:50] = 1                                       # the silhouette jumps from frame 0 to 1
     mask[1:, 16:56, 10:50] = 1
     mask[3, 16:57, 10:50] = 1
-    ctx.target_mask = mask
-    state = _state(cfg)
-    assert plain_cloth(ctx, state, cfg, torch.zeros(4, 4, 3), template, tracks) is tracks
-    assert state.params.light is None and "light" not in state.optimizer.specs
+    for bend in (0.0, 0.5):       # a flat cloth in a breeze; a billowed one cut from the middle of its motion
+        ctx, template, tracks = _plain_or_textured(False)
+        template = template.clone()
+        template[:, 2] = bend * template[:, 0].abs()                # a tent: bend_degrees 19.8
+        ctx.template_positions, ctx.target_mask = template, mask
+        state = _state(cfg)
+        assert plain_cloth(ctx, state, cfg, torch.zeros(4, 4, 3), template, tracks) is tracks   # full weight
+        assert (state.params.light is None) == (bend > 0)            # the billowed one unlit
     off = _state(ShapeConfig(lr_light=0.05, plain_shading=0.0))   # plain_shading = 0: nothing changes
     ctx, template, tracks = _plain_or_textured(False)
     off_cfg = ShapeConfig(lr_light=0.05, plain_shading=0.0)

@@ -7,7 +7,8 @@ import torch
 from saft.reconstruct.tracks import (VertexTracks, noise_level, project, texture_confidence,
                                      texture_strength, track_loss)
 from saft.scene.camera import look_at
-from saft.scene.motion import starts_moving
+from saft.scene.mesh import quad_triangles
+from saft.scene.motion import bend_degrees, starts_curved_in_motion, starts_moving
 from saft.synthetic import procedural_texture
 
 
@@ -89,3 +90,28 @@ def test_a_clip_starts_moving_where_its_silhouette_changes_from_frame_0():
     assert not starts_moving(_moving_square(still_frames=1))   # at rest for a frame, then moving
     assert not starts_moving(_moving_square(still_frames=0)[:1])
     assert not starts_moving(np.ones((4, 8, 8)))                # nothing moves at all
+
+
+def _grid(bend: float) -> tuple[np.ndarray, np.ndarray]:
+    """A 5 x 5 grid of 0.1 m quads bent about its middle column into a tent of slope `bend`; its triangles."""
+    g = np.linspace(-0.2, 0.2, 5)
+    v = np.array([(x, y, bend * abs(x)) for y in g for x in g])
+    quads = np.array([[r * 5 + c, r * 5 + c + 1, (r + 1) * 5 + c + 1, (r + 1) * 5 + c]
+                      for r in range(4) for c in range(4)])
+    return v, quad_triangles(quads)
+
+
+def test_bend_degrees_is_zero_for_a_plane_and_the_tent_angle_for_a_tent():
+    assert bend_degrees(*_grid(0.0)) == pytest.approx(0.0, abs=1e-9)
+    # the faces of a tent of slope 0.5 tilt by atan(0.5) = 26.6 deg; the ridge's normals stay on the mean
+    tilted = bend_degrees(*_grid(0.5))
+    assert 15.0 < tilted < np.degrees(np.arctan(0.5))
+    assert bend_degrees(*_grid(0.1)) < bend_degrees(*_grid(0.3)) < tilted
+
+
+def test_only_a_clearly_curved_clip_in_motion_starts_curved_in_motion():
+    moving, still = _moving_square(still_frames=0), _moving_square(still_frames=1)
+    assert starts_curved_in_motion(moving, *_grid(0.5))
+    assert not starts_curved_in_motion(moving, *_grid(0.0))     # a flat cloth already in a breeze
+    assert not starts_curved_in_motion(moving, *_grid(0.05))    # a real template's few degrees
+    assert not starts_curved_in_motion(still, *_grid(0.5))      # curved but at rest

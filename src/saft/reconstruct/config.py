@@ -185,7 +185,8 @@ class ShapeConfig:
     # median 10.2 -> 7.8; one run each, the flag and one corner repeated under perturbation), but R1 lost at
     # perturbations 1 and 3: 0.425 -> 0.461, 0.435 -> 0.459 (BENCHMARKS.md, "Soft track confidence, …").
     track_drift_scale: float = 0.0
-    # Where the clip starts moving (the silhouette's first change >= 0.3 of its median change), the whole
+    # Where the clip starts curved in motion (the silhouette's first change >= 0.3 of its median change and
+    # the template clearly billowed: saft.scene.motion.starts_curved_in_motion), the whole
     # track loss weighs min(1, Q / track_texture), Q the median Shi–Tomasi texture strength of the tracks'
     # starts in frame 0 in units of the video's noise (saft.reconstruct.tracks.texture_confidence; 0 = off):
     # on a plain fabric the flow follows the shading. Q: cotton 0.02, lamé 0.02-0.04, plaid 0.01, satin
@@ -194,6 +195,9 @@ class ShapeConfig:
     # 0.300 -> 0.298 (0.5: satin 40.8, the satin needs the small weight); every other scene measured
     # identical (weight 1). Without the gate the same clips from rest: plaid +53 %, cotton +20 % (median of
     # 3), satin and lamé x0.36 / x0.24 (BENCHMARKS.md, "Track confidence on clips that start moving").
+    # Not on a flat cloth already in a breeze (Newton's appearance clips): there the tracks weighed down
+    # cost plaid 5.18 -> 16.11, satin 20.97 -> 35.5, lamé 16.02 -> 44.6, cotton 47.40 -> 57.6 (BENCHMARKS.md,
+    # "Fourteenth session").
     track_texture: float = 1.0
     # Skip a track where the current reconstruction hides its vertex behind another part of the cloth by
     # more than the mean edge length (a fold the flow's forward-backward check let through).
@@ -230,9 +234,12 @@ class ShapeConfig:
     # run each: cotton 8.25 -> 5.18, lamé 12.4 -> 1.51, satin 2.77 -> 1.05, plaid 0.875 -> 0.782, print and
     # every Newton scene / R1 (Q >= 1.1) unlit, identical (BENCHMARKS.md, "Shading as the shape cue of plain
     # cloth"). The default, with light_from_above 0.4, since 2026-11-27 (cotton 8.25 -> 5.85, lamé 12.4 -> 1.47,
-    # satin 2.77 -> 1.05, plaid 0.875 -> 0.76 at b3013bf). A plain fabric in a clip that starts moving stays
-    # unlit: the light lost there (clips cut at frame 24: satin 3.49 -> 7.83, lamé 4.76 -> 9.55, plaid 0.95 ->
-    # 1.14; cotton 27.8 -> 20.5).
+    # satin 2.77 -> 1.05, plaid 0.875 -> 0.76 at b3013bf). A plain fabric in a clip that starts curved in
+    # motion stays unlit: the light lost there (clips cut at frame 24: satin 3.49 -> 7.83, lamé 4.76 -> 9.55,
+    # plaid 0.95 -> 1.14; cotton 27.8 -> 20.5). One already moving from a flat frame 0 keeps the light and its
+    # tracks at full weight (Newton's appearance clips, against unlit with the tracks weighed down: plaid
+    # 16.11 -> 5.18, satin 35.5 -> 20.97, lamé 44.6 -> 16.02, cotton 57.6 -> 47.40; with the tracks weighed
+    # down: 12.35, 18.54, 31.07, 56.54; BENCHMARKS.md, "Fourteenth session").
     plain_shading: float = 0.5
     # The light also starts at this times the scene's up (−gravity, where the scene states gravity): a sky and a
     # sun above the cloth. 0.4 with plain_shading 0.5 and lr_light 0.05 gives the row of light_init (0, 0.4, 0) on

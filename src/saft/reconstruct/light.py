@@ -13,11 +13,15 @@ With a known light the relative shading (saft.render.shading) halves the cotton'
 weigh little (BENCHMARKS.md, "Shading as the shape cue of plain cloth"). So with shape.plain_shading = Q0 > 0,
 where the tracks' median texture strength Q at frame 0 (saft.reconstruct.tracks.texture_strength, in units of
 the video's noise) is below Q0, the whole track loss weighs min(1, Q / shape.track_texture) also on a clip from
-rest (tracks.texture_confidence weighs it so only where the clip starts moving), and the light vector
-(shape.lr_light, from shape.light_init) is kept; where Q >= Q0 (a textured cloth) the light is dropped and the tracks are left
-as they are: the run is the unlit one. A plain fabric in a clip that starts moving (saft.scene.motion) is
-unlit too: there the light lost (satin 3.49 -> 7.83, lamé 4.76 -> 9.55, plaid 0.95 -> 1.14, cotton 27.8 ->
-20.5; BENCHMARKS.md, "Twelfth session's defaults").
+rest (tracks.texture_confidence weighs it so only where the clip starts curved in motion), and the light
+vector (shape.lr_light, from shape.light_init) is kept; where Q >= Q0 (a textured cloth) the light is dropped
+and the tracks are left as they are: the run is the unlit one. A plain fabric in a clip that starts curved in
+motion (saft.scene.motion.starts_curved_in_motion: cut from the middle of its motion) is unlit too: there the
+light lost (satin 3.49 -> 7.83, lamé 4.76 -> 9.55, plaid 0.95 -> 1.14, cotton 27.8 -> 20.5; BENCHMARKS.md,
+"Twelfth session's defaults"). A plain fabric already moving from a flat frame 0 (a breeze from the first
+frame) keeps the light and its tracks at full weight: on Newton's appearance clips that beat both the unlit
+run with weighed-down tracks (2-3x lower CD2) and the light with weighed-down tracks (BENCHMARKS.md,
+"Fourteenth session").
 """
 
 from __future__ import annotations
@@ -30,7 +34,7 @@ import torch
 
 from saft.reconstruct.context import PhaseContext
 from saft.reconstruct.tracks import VertexTracks, texture_q, visible_vertices
-from saft.scene.motion import starts_moving
+from saft.scene.motion import starts_curved_in_motion, starts_moving
 
 log = logging.getLogger("saft")
 
@@ -76,24 +80,32 @@ def clip_texture_q(ctx: PhaseContext, template: torch.Tensor, texture: torch.Ten
     return texture_q(ctx.target_rgb[0].detach().cpu().numpy(), mask0, start, ok)
 
 
+def curved_start_in_motion(ctx: PhaseContext) -> bool:
+    """saft.scene.motion.starts_curved_in_motion of the run's clip and template."""
+    return starts_curved_in_motion(ctx.target_mask.detach().cpu().numpy(),
+                                   ctx.template_positions.detach().cpu().numpy(), ctx.triangles.cpu().numpy())
+
+
 def plain_cloth(ctx: PhaseContext, state, cfg, texture: torch.Tensor, template: torch.Tensor,
                 tracks: VertexTracks | None) -> VertexTracks | None:
     """Apply shape.plain_shading to the run (state: ShapeState; cfg: ShapeConfig): returns the tracks to
-    use; on a textured cloth, and on a plain one in a clip that starts moving, drops the light from state's
-    parameters and optimizer (the unlit run, tracks untouched). A no-op when off, or
-    when the light is already gone (a resumed run of a textured cloth)."""
+    use; on a textured cloth, and on a plain one in a clip that starts curved in motion, drops the light from
+    state's parameters and optimizer (the unlit run, tracks untouched); on a plain one already moving from a
+    flat frame 0 keeps the light and the tracks as they are. A no-op when off, or when the light is already
+    gone (a resumed run of a textured cloth)."""
     if cfg.plain_shading <= 0 or state.params.light is None:
         return tracks
     q = clip_texture_q(ctx, template, texture)
     plain = q < cfg.plain_shading
-    moving = plain and starts_moving(ctx.target_mask.detach().cpu().numpy())
+    curved = plain and curved_start_in_motion(ctx)
+    breeze = plain and not curved and starts_moving(ctx.target_mask.detach().cpu().numpy())
     log.info("shape.plain_shading: texture strength Q = %.3g against %g: %s", q, cfg.plain_shading,
-             "textured, unlit" if not plain else "plain but the clip starts moving, unlit" if moving
-             else "plain, shaded, tracks weighed down")
-    if not plain or moving:
+             "textured, unlit" if not plain else "plain but the clip starts curved in motion, unlit" if curved
+             else "plain, moving from flat, shaded" if breeze else "plain, shaded, tracks weighed down")
+    if not plain or curved:
         state.params.light = None
         state.optimizer.drop("light")
         return tracks
-    if tracks is None or cfg.track_texture <= 0:
+    if breeze or tracks is None or cfg.track_texture <= 0:
         return tracks
     return dataclasses.replace(tracks, strength=min(tracks.strength, 1.0, q / cfg.track_texture))

@@ -35,7 +35,7 @@ from saft.reconstruct.frame_schedule import FrameSchedule, window_first_frame
 from saft.reconstruct.context import PhaseContext
 from saft.reconstruct.force_field import affine_basis, total_accelerations
 from saft.reconstruct.initial_velocity import initial_velocity, start_velocity, velocity_prior
-from saft.reconstruct.light import initial_light, plain_cloth
+from saft.reconstruct.light import curved_start_in_motion, initial_light, plain_cloth
 from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_loss
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
 from saft.reconstruct.step_guard import StepGuard
@@ -424,9 +424,10 @@ def shape_tracks(ctx: PhaseContext, cfg: ShapeConfig, texture: torch.Tensor, tem
         return None
     with torch.no_grad():
         depth0 = ctx.render(ctx.template_positions[None].to(torch.float32), texture).depth[0]
+    texture_q0 = cfg.track_texture if cfg.track_texture > 0 and curved_start_in_motion(ctx) else 0.0
     return compute_vertex_tracks(ctx.target_rgb, ctx.target_mask, template, ctx.camera, depth0,
                                  cfg.track_fb_threshold, cfg.track_reanchor_radius, cfg.track_jump_ratio,
-                                 cfg.track_jump_floor, cfg.track_drift, cfg.track_drift_scale, cfg.track_texture)
+                                 cfg.track_jump_floor, cfg.track_drift, cfg.track_drift_scale, texture_q0)
 
 
 def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, phys: PhysicsConfig,

@@ -46,11 +46,12 @@ strongest quarter is as often > 3 px off as the weakest, a moving highlight's ed
 but between clips it does: the median over a clip's tracks is 0.02 on the plain cotton, 0.12 on the satin,
 1.1–1.8 on the printed Newton scenes, 27 on R1. So with shape.track_texture = Q0 > 0 the whole track loss
 weighs min(1, Q / Q0), Q that median (texture_confidence): the tracks of a plain fabric weigh little, those
-of a printed cloth are unchanged. Only where the clip starts moving (starts_moving: the silhouette's change from
-frame 0 to 1 is at least START_SHARE of its median change between frames; 0.03 on the appearance clips that
-start at rest, 0.73 on those cut at frame 24): from rest the flow's first steps are small, and weighing the
-same plain fabrics' tracks down there helped as often as it hurt (BENCHMARKS.md, "Track confidence on clips
-that start moving").
+of a printed cloth are unchanged. Only where the clip starts curved in motion (saft.scene.motion.
+starts_curved_in_motion: the silhouette changes from frame 0 to 1 and the template is clearly billowed, as on
+the appearance clips cut at frame 24): from rest the flow's first steps are small, and weighing the same
+plain fabrics' tracks down there helped as often as it hurt (BENCHMARKS.md, "Track confidence on clips that
+start moving"); on a flat cloth already in a breeze (Newton's appearance clips) the tracks are 0.3–1.4 px
+off (median) and weighing them down cost 2–3× (BENCHMARKS.md, "Fourteenth session").
 
     L_track = mean over valid (frame, vertex) of huber(|π(x_v,t) − p_v,t| / s)
 
@@ -70,7 +71,6 @@ from scipy.ndimage import uniform_filter
 
 from saft.io_utils import bilinear_sample
 from saft.scene.camera import Camera
-from saft.scene.motion import starts_moving
 
 log = logging.getLogger("saft")
 
@@ -278,8 +278,8 @@ def compute_vertex_tracks(rgb: torch.Tensor, mask: torch.Tensor, template: torch
     """Tracks of every template vertex through the target video (rgb (N, H, W, 3), mask (N, H, W)); with
     jump_ratio > 0 a track also ends at its first colour jump (end_at_appearance_jumps), with drift > 0 where
     its chromaticity drifts from frame 0's (end_at_colour_drift); with drift_scale > 0 each track-frame is
-    weighted by drift_confidence; with texture > 0, where the clip starts moving, the whole loss by
-    texture_confidence."""
+    weighted by drift_confidence; with texture > 0 the whole loss by texture_confidence (the caller,
+    saft.reconstruct.shape_phase.shape_tracks, passes it only where the clip starts curved in motion)."""
     rgb_np = rgb.detach().cpu().numpy()
     mask_np = mask.detach().cpu().numpy()
     start, ok = visible_vertices(template, camera, mask_np[0], depth0.detach().cpu().numpy())
@@ -287,8 +287,7 @@ def compute_vertex_tracks(rgb: torch.Tensor, mask: torch.Tensor, template: torch
     valid = end_at_appearance_jumps(rgb_np, pts, valid, jump_ratio, jump_floor)
     valid = end_at_colour_drift(rgb_np, pts, valid, drift)
     weight = drift_confidence(rgb_np, pts, drift_scale)
-    strength = texture_confidence(rgb_np[0], mask_np[0], start, ok, texture) if texture > 0 and \
-        starts_moving(mask_np) else 1.0
+    strength = texture_confidence(rgb_np[0], mask_np[0], start, ok, texture) if texture > 0 else 1.0
     if strength < 1.0:
         log.info("point tracks on weak texture: the track loss weighs %.3g (shape.track_texture)", strength)
 
