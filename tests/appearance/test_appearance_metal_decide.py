@@ -6,7 +6,7 @@ import torch
 
 from saft.appearance.config import AppearanceConfig
 from saft.appearance.guided import GuidedMaps
-from saft.appearance.metal_decide import decide_metals, held_out_frames
+from saft.appearance.metal_decide import decide_metals, held_out_frames, ramp_metallic, rate_factor
 from saft.appearance.params import EnvironmentMap
 
 torch.set_num_threads(1)
@@ -64,12 +64,52 @@ def test_only_half_metal_clusters_with_a_metal_colour_are_decided():
     assert decide_metals(plain, _env(), 1.0, _loss_to(_model()[2]), 12, epochs=5, lr=0.05, lr_env=0.05) == []
 
 
+def test_the_ramp_moves_the_metallic_on_a_line_to_the_pin():
+    up = [ramp_metallic(0.2, True, e, 4) for e in range(5)]
+    assert up[:3] == pytest.approx([0.4, 0.6, 0.8]) and up[3:] == [None, None]
+    assert [ramp_metallic(0.2, False, e, 4) for e in range(3)] == pytest.approx([0.15, 0.1, 0.05])
+    assert ramp_metallic(0.2, True, 0, 1) is None   # a ramp of one epoch: pinned at once
+
+
+def test_the_rates_decay_from_the_pin_to_the_last_epoch():
+    assert [rate_factor(e, 10, 4, 0.25) for e in (0, 4)] == [1.0, 1.0]
+    assert rate_factor(9, 10, 4, 0.25) == pytest.approx(0.25)
+    assert rate_factor(6, 10, 4, 0.25) == pytest.approx(0.25 ** 0.4)
+    assert rate_factor(9, 10, 0, 1.0) == 1.0   # no decay: the constant rate
+
+
+def test_a_ramped_refit_ends_pinned_and_finds_the_bright_gold():
+    model, gold, tex = _model()
+    bright = tex.copy()
+    bright[:, :8] = [0.9, 0.7, 0.3]
+    rows = decide_metals(model, _env(), 1.0, _loss_to(bright), 12, epochs=20, lr=0.05, lr_env=0.05, ramp=10,
+                         decay=0.3)
+    assert [r["decision"] for r in rows] == ["metal"]
+    assert model.cluster_values()["metallic"][gold].item() == pytest.approx(1.0, abs=1e-6)
+    model, gold, tex = _model()
+    rows = decide_metals(model, _env(), 1.0, _loss_to(tex), 12, epochs=20, lr=0.05, lr_env=0.05, ramp=10)
+    assert [r["decision"] for r in rows] == ["as fitted"]
+
+
+def test_low_zero_decides_a_metal_coloured_cluster_the_fit_left_dielectric():
+    model, gold, tex = _model(0.01)
+    bright = tex.copy()
+    bright[:, :8] = [0.9, 0.7, 0.3]
+    assert decide_metals(model, _env(), 1.0, _loss_to(bright), 12, epochs=5, lr=0.05, lr_env=0.05) == []
+    rows = decide_metals(model, _env(), 1.0, _loss_to(bright), 12, epochs=20, lr=0.05, lr_env=0.05, low=0.0, ramp=10)
+    assert [r["cluster"] for r in rows] == [gold] and rows[0]["metallic_fitted"] == pytest.approx(0.01, abs=1e-3)
+    assert rows[0]["decision"] == "metal"
+
+
 def test_metal_decide_validates_and_the_profiles_decide():
     from saft.appearance.config import cpu_profile
 
     AppearanceConfig(metal_colour=True, metal_decide=30).validate()
-    with pytest.raises(Exception):
-        AppearanceConfig(metal_decide=-1).validate()
+    AppearanceConfig(metal_colour=True, metal_decide=40, metal_decide_ramp=20, metal_decide_low=0.0).validate()
+    for bad in (dict(metal_decide=-1), dict(metal_decide_ramp=-1), dict(metal_decide_low=0.95),
+                dict(metal_decide_low=-0.1)):
+        with pytest.raises(Exception):
+            AppearanceConfig(**bad).validate()
     assert cpu_profile().metal_decide == 30
 
 

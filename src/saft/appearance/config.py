@@ -83,6 +83,18 @@ class AppearanceConfig:
     # threads as metal…").
     # Lost and removed: the metal clusters started at metallic 0.5, and the metal's refit from a dimmed light.
     metal_decide: int = 0
+    # metal_decide > 0: > 1: each refit moves the cluster's metallic on a straight line from its fitted value
+    # to the pin over this many of its epochs, the light and the maps following (appearance.metal_decide:
+    # pinned at once, a metal starts at 15-30x the fit's held-out loss under the light fitted for a half
+    # metal and 30 epochs do not bring it back: the lamé's threads at seed 1); 0 = pinned at once
+    metal_decide_ramp: int = 0
+    # metal_decide > 0: the smallest fitted metallic of a metal-coloured cluster that is decided (below it the
+    # fit's metallic is taken as its verdict; 0: every metal-coloured cluster short of `high` is decided)
+    metal_decide_low: float = 0.05
+    # metal_decide > 0: the refits' rates decay from the fit's mid-decay rates to its final ones (× a further
+    # √lr_final_factor) over the epochs after the pin (the ramp's at the mid rate), as the fit's own rates
+    # do; off: the refits end at the mid rate (their held-out loss rises with epochs: the jitter)
+    metal_decide_decay: bool = False
     # maps="guided": mean squared colour of the log-gain grid (each cell's channels minus their mean), a
     # prior that ties the gain's colour to grey so the light's colour goes to the env map (0 = off)
     lambda_gain_chroma: float = 0.0
@@ -162,8 +174,9 @@ class AppearanceConfig:
             bad("normal_grid", "normal_grid, normal_keys, lr_normals and lambda_normals must be >= 0")
         if self.metal_rate <= 0 or self.lambda_metal_blend < 0 or not (0 <= self.metal_gate <= 1):
             bad("metal_rate", "metal_rate must be > 0, lambda_metal_blend >= 0 and metal_gate lie in [0, 1]")
-        if self.metal_decide < 0:
-            bad("metal_decide", "must be >= 0 epochs (0 = off)")
+        if self.metal_decide < 0 or self.metal_decide_ramp < 0 or not (0 <= self.metal_decide_low < 0.95):
+            bad("metal_decide", "metal_decide and metal_decide_ramp must be >= 0 epochs (0 = off), metal_decide_low "
+                                "lie in [0, 0.95)")
         if self.gain_grid < 1 or self.clusters < 1:
             bad("clusters", "gain_grid and clusters must be >= 1")
         if self.env_levels < 1 or (self.env_height >> (self.env_levels - 1)) < 1:
