@@ -101,6 +101,32 @@ def test_low_zero_decides_a_metal_coloured_cluster_the_fit_left_dielectric():
     assert rows[0]["decision"] == "metal"
 
 
+def test_follow_decides_the_rim_once_its_core_is_metal():
+    tex = np.full((18, 18, 3), [0.08, 0.06, 0.02], np.float32)   # the thread's core
+    tex[:, 6:12] = [0.25, 0.12, 0.02]                            # its rim, another colour cluster
+    tex[:, 12:] = [0.05, 0.06, 0.18]                             # the cloth
+    bright = tex.copy()
+    bright[:, :12] = [0.9, 0.7, 0.3]
+
+    def model():
+        m = GuidedMaps(tex, size=18, gain_grid=2, clusters=3, init_roughness=0.3, init_metallic=0.3)
+        core, rim = int(m.members[:, 0, 0].argmax()), int(m.members[:, 0, 8].argmax())
+        m.use_metal_colour(rate=3.0, allowed=np.isin(np.arange(3), [core, rim]))
+        with torch.no_grad():
+            m.metal_logit[rim] = np.log(0.01 / 0.99) / float(m.metal_scale[rim])   # the fit left it dielectric
+        return m, core, rim
+
+    for follow in (False, True):
+        m, core, rim = model()
+        rows = decide_metals(m, _env(), 1.0, _loss_to(bright), 12, epochs=20, lr=0.05, lr_env=0.05, ramp=10,
+                             follow=follow)
+        assert [r["cluster"] for r in rows] == ([core, rim] if follow else [core])
+        assert all(r["decision"] == "metal" for r in rows)
+    m, core, rim = model()   # the core stays as fitted: nothing follows
+    rows = decide_metals(m, _env(), 1.0, _loss_to(tex), 12, epochs=20, lr=0.05, lr_env=0.05, ramp=10, follow=True)
+    assert [(r["cluster"], r["decision"]) for r in rows] == [(core, "as fitted")]
+
+
 def test_metal_decide_validates_and_the_profiles_decide():
     from saft.appearance.config import cpu_profile
 

@@ -95,6 +95,11 @@ class AppearanceConfig:
     # √lr_final_factor) over the epochs after the pin (the ramp's at the mid rate), as the fit's own rates
     # do; off: the refits end at the mid rate (their held-out loss rises with epochs: the jitter)
     metal_decide_decay: bool = False
+    # metal_decide > 0: once a cluster has become metal, the metal-coloured clusters the fit left below
+    # metal_decide_low are decided too (a thread's rim, split from its core by the colour clusters: the lamé's
+    # at seed 1, metallic 0.002 after the fit); off: only [metal_decide_low, 0.95]. A cloth without a half
+    # metal is never refitted
+    metal_decide_follow: bool = False
     # maps="guided": mean squared colour of the log-gain grid (each cell's channels minus their mean), a
     # prior that ties the gain's colour to grey so the light's colour goes to the env map (0 = off)
     lambda_gain_chroma: float = 0.0

@@ -129,13 +129,14 @@ def held_out_loss(model, env, weight: float, frame_loss: Callable, held: list[in
 
 def decide_metals(model, env, weight: float, frame_loss: Callable, n_frames: int, epochs: int, lr: float,
                   lr_env: float, spp: int = 4, seed: int = 0, low: float = 0.05, high: float = 0.95,
-                  ramp: int = 0, decay: float = 1.0) -> list[dict]:
+                  ramp: int = 0, decay: float = 1.0, follow: bool = False) -> list[dict]:
     """Each cluster with a metal colour whose metallic lies in [low, high] (largest first) refitted metal and
     dielectric (refit_pinned) from the model and env map as they are; both keep the metal's state where its
     held-out loss is the lower, their own otherwise. One dict per cluster decided: its metallic, the held-out
     losses (fitted, each alternative pinned before and after its refit), the refits' roughness, the decision.
     ramp: refit_pinned's ramp from the cluster's metallic as it is when its turn comes; decay: its rates'
-    decay. In place."""
+    decay. follow: once a cluster has become metal, the metal-coloured clusters below `low` are decided
+    too (largest first; the rim of a thread whose core was found). In place."""
     if model.metal is None:
         return []
     values = model.cluster_values()["metallic"].detach()
@@ -144,7 +145,10 @@ def decide_metals(model, env, weight: float, frame_loss: Callable, n_frames: int
     todo.sort(key=lambda k: -float(model.area[k]))
     train, held = held_out_frames(n_frames)
     out = []
-    for k in todo:
+    below = sorted((k for k in range(model.num_clusters) if allowed[k] and float(values[k]) < low),
+                   key=lambda k: -float(model.area[k]))
+    while todo:
+        k = todo.pop(0)
         start = copy.deepcopy((model.state_dict(), env.state_dict()))
         now = float(model.cluster_values()["metallic"][k].detach())   # an earlier refit may have moved it
         row = {"cluster": k, "metallic_fitted": now,
@@ -164,4 +168,6 @@ def decide_metals(model, env, weight: float, frame_loss: Callable, n_frames: int
         model.load_state_dict(keep[0])
         env.load_state_dict(keep[1])
         out.append({**row, "decision": "metal" if keep is states[True] else "as fitted"})
+        if follow and keep is states[True] and below:
+            todo, below = todo + below, []
     return out
