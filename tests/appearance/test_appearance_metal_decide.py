@@ -71,6 +71,27 @@ def test_the_ramp_moves_the_metallic_on_a_line_to_the_pin():
     assert ramp_metallic(0.2, True, 0, 1) is None   # a ramp of one epoch: pinned at once
 
 
+def test_strict_keeps_the_fit_where_the_metal_beats_only_the_dielectric():
+    model, gold, tex = _model()
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    loss = _loss_to(tex)
+    # the held-out scores in decide_metals' order (8 frames each): the fit 0.1, the metal pinned 0.9 and
+    # refitted 0.3, the dielectric pinned 0.9 and refitted 0.5: the metal beats the dielectric, not the fit
+    scores, calls = [0.1, 0.9, 0.3, 0.9, 0.5], {"n": 0}
+
+    def frame_loss(f, maps, env, spp, seed):
+        if torch.is_grad_enabled():   # the refits' gradients
+            return loss(f, maps, env, spp, seed)
+        calls["n"] += 1
+        return torch.tensor(scores[(calls["n"] - 1) // 8])
+    rows = decide_metals(model, _env(), 1.0, frame_loss, 12, epochs=3, lr=0.05, lr_env=0.05, strict=True)
+    assert rows[0]["held_loss_metal"] < rows[0]["held_loss_dielectric"] and rows[0]["decision"] == "as fitted"
+    assert all(torch.equal(before[k], v) for k, v in model.state_dict().items())
+    calls["n"] = 0
+    rows = decide_metals(model, _env(), 1.0, frame_loss, 12, epochs=3, lr=0.05, lr_env=0.05)   # not strict
+    assert rows[0]["decision"] == "metal"
+
+
 def test_the_rates_decay_from_the_pin_to_the_last_epoch():
     assert [rate_factor(e, 10, 4, 0.25) for e in (0, 4)] == [1.0, 1.0]
     assert rate_factor(9, 10, 4, 0.25) == pytest.approx(0.25)

@@ -129,14 +129,15 @@ def held_out_loss(model, env, weight: float, frame_loss: Callable, held: list[in
 
 def decide_metals(model, env, weight: float, frame_loss: Callable, n_frames: int, epochs: int, lr: float,
                   lr_env: float, spp: int = 4, seed: int = 0, low: float = 0.05, high: float = 0.95,
-                  ramp: int = 0, decay: float = 1.0, follow: bool = False) -> list[dict]:
+                  ramp: int = 0, decay: float = 1.0, follow: bool = False, strict: bool = False) -> list[dict]:
     """Each cluster with a metal colour whose metallic lies in [low, high] (largest first) refitted metal and
     dielectric (refit_pinned) from the model and env map as they are; both keep the metal's state where its
     held-out loss is the lower, their own otherwise. One dict per cluster decided: its metallic, the held-out
     losses (fitted, each alternative pinned before and after its refit), the refits' roughness, the decision.
     ramp: refit_pinned's ramp from the cluster's metallic as it is when its turn comes; decay: its rates'
     decay. follow: once a cluster has become metal, the metal-coloured clusters below `low` are decided
-    too (largest first; the rim of a thread whose core was found). In place."""
+    too (largest first; the rim of a thread whose core was found). strict: the metal must also beat the
+    held-out loss of the state it would replace (the fit as it stands). In place."""
     if model.metal is None:
         return []
     values = model.cluster_values()["metallic"].detach()
@@ -164,7 +165,8 @@ def decide_metals(model, env, weight: float, frame_loss: Callable, n_frames: int
             losses[metal] = row[f"held_loss_{name}"] = held_out_loss(model, env, weight, frame_loss, held, spp)
             row[f"roughness_{name}"] = float(model.cluster_values()["roughness"][k].detach())
             states[metal] = copy.deepcopy((model.state_dict(), env.state_dict()))
-        keep = states[True] if losses[True] < losses[False] else start   # metal, or as the fit left it
+        wins = losses[True] < losses[False] and (not strict or losses[True] < row["held_loss_fitted"])
+        keep = states[True] if wins else start   # metal, or as the fit left it
         model.load_state_dict(keep[0])
         env.load_state_dict(keep[1])
         out.append({**row, "decision": "metal" if keep is states[True] else "as fitted"})
