@@ -86,14 +86,17 @@ class AppearanceConfig:
     # metal_decide > 0: > 1: each refit moves the cluster's metallic on a straight line from its fitted value
     # to the pin over this many of its epochs, the light and the maps following (appearance.metal_decide:
     # pinned at once, a metal starts at 15-30x the fit's held-out loss under the light fitted for a half
-    # metal and 30 epochs do not bring it back: the lamé's threads at seed 1); 0 = pinned at once
+    # metal and 30 epochs do not bring it back: the lamé's threads at seed 1); 0 = pinned at once. Measured
+    # (BENCH_lame5.md) with metal_decide = 40, follow, strict: the lamé's threads found at seed 1 too
+    # (metallic 0.167 -> 0.016, relit +2.8 / +2.7 dB), at seed 0 relit -0.35 / -0.43 dB; 30 / 15 lost seed 1
     metal_decide_ramp: int = 0
     # metal_decide > 0: the smallest fitted metallic of a metal-coloured cluster that is decided (below it the
-    # fit's metallic is taken as its verdict; 0: every metal-coloured cluster short of `high` is decided)
+    # fit's metallic is taken as its verdict; 0: every metal-coloured cluster short of 0.95 is decided: lost
+    # the print, a 4 % cluster made metal, relit −6.5 dB, BENCH_lame5.md; see metal_decide_follow)
     metal_decide_low: float = 0.05
     # metal_decide > 0: the refits' rates decay from the fit's mid-decay rates to its final ones (× a further
     # √lr_final_factor) over the epochs after the pin (the ramp's at the mid rate), as the fit's own rates
-    # do; off: the refits end at the mid rate (their held-out loss rises with epochs: the jitter)
+    # do; off: the refits end at the mid rate. Lost: the lamé's diffuse -0.20 / -0.38 dB (BENCH_lame5.md)
     metal_decide_decay: bool = False
     # metal_decide > 0: once a cluster has become metal, the metal-coloured clusters the fit left below
     # metal_decide_low are decided too (a thread's rim, split from its core by the colour clusters: the lamé's
