@@ -6,7 +6,7 @@ import torch
 
 from saft.appearance.config import AppearanceConfig
 from saft.appearance.guided import GuidedMaps
-from saft.appearance.metal_decide import decide_metals, held_out_frames
+from saft.appearance.metal_decide import decide_metals, held_out_frames, ramp_metallic
 from saft.appearance.params import EnvironmentMap
 
 torch.set_num_threads(1)
@@ -64,13 +64,92 @@ def test_only_half_metal_clusters_with_a_metal_colour_are_decided():
     assert decide_metals(plain, _env(), 1.0, _loss_to(_model()[2]), 12, epochs=5, lr=0.05, lr_env=0.05) == []
 
 
+def test_the_ramp_moves_the_metallic_on_a_line_to_the_pin():
+    up = [ramp_metallic(0.2, True, e, 4) for e in range(5)]
+    assert up[:3] == pytest.approx([0.4, 0.6, 0.8]) and up[3:] == [None, None]
+    assert [ramp_metallic(0.2, False, e, 4) for e in range(3)] == pytest.approx([0.15, 0.1, 0.05])
+    assert ramp_metallic(0.2, True, 0, 1) is None   # a ramp of one epoch: pinned at once
+
+
+def test_strict_keeps_the_fit_where_the_metal_beats_only_the_dielectric():
+    model, gold, tex = _model()
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    loss = _loss_to(tex)
+    # the held-out scores in decide_metals' order (8 frames each): the fit 0.1, the metal pinned 0.9 and
+    # refitted 0.3, the dielectric pinned 0.9 and refitted 0.5: the metal beats the dielectric, not the fit
+    scores, calls = [0.1, 0.9, 0.3, 0.9, 0.5], {"n": 0}
+
+    def frame_loss(f, maps, env, spp, seed):
+        if torch.is_grad_enabled():   # the refits' gradients
+            return loss(f, maps, env, spp, seed)
+        calls["n"] += 1
+        return torch.tensor(scores[(calls["n"] - 1) // 8])
+    rows = decide_metals(model, _env(), 1.0, frame_loss, 12, epochs=3, lr=0.05, lr_env=0.05, strict=True)
+    assert rows[0]["held_loss_metal"] < rows[0]["held_loss_dielectric"] and rows[0]["decision"] == "as fitted"
+    assert all(torch.equal(before[k], v) for k, v in model.state_dict().items())
+    calls["n"] = 0
+    rows = decide_metals(model, _env(), 1.0, frame_loss, 12, epochs=3, lr=0.05, lr_env=0.05)   # not strict
+    assert rows[0]["decision"] == "metal"
+
+
+def test_a_ramped_refit_ends_pinned_and_finds_the_bright_gold():
+    model, gold, tex = _model()
+    bright = tex.copy()
+    bright[:, :8] = [0.9, 0.7, 0.3]
+    rows = decide_metals(model, _env(), 1.0, _loss_to(bright), 12, epochs=20, lr=0.05, lr_env=0.05, ramp=10)
+    assert [r["decision"] for r in rows] == ["metal"]
+    assert model.cluster_values()["metallic"][gold].item() == pytest.approx(1.0, abs=1e-6)
+    model, gold, tex = _model()
+    rows = decide_metals(model, _env(), 1.0, _loss_to(tex), 12, epochs=20, lr=0.05, lr_env=0.05, ramp=10)
+    assert [r["decision"] for r in rows] == ["as fitted"]
+
+
+def test_low_zero_decides_a_metal_coloured_cluster_the_fit_left_dielectric():
+    model, gold, tex = _model(0.01)
+    bright = tex.copy()
+    bright[:, :8] = [0.9, 0.7, 0.3]
+    assert decide_metals(model, _env(), 1.0, _loss_to(bright), 12, epochs=5, lr=0.05, lr_env=0.05) == []
+    rows = decide_metals(model, _env(), 1.0, _loss_to(bright), 12, epochs=20, lr=0.05, lr_env=0.05, low=0.0, ramp=10)
+    assert [r["cluster"] for r in rows] == [gold] and rows[0]["metallic_fitted"] == pytest.approx(0.01, abs=1e-3)
+    assert rows[0]["decision"] == "metal"
+
+
+def test_follow_decides_the_rim_once_its_core_is_metal():
+    tex = np.full((18, 18, 3), [0.08, 0.06, 0.02], np.float32)   # the thread's core
+    tex[:, 6:12] = [0.25, 0.12, 0.02]                            # its rim, another colour cluster
+    tex[:, 12:] = [0.05, 0.06, 0.18]                             # the cloth
+    bright = tex.copy()
+    bright[:, :12] = [0.9, 0.7, 0.3]
+
+    def model():
+        m = GuidedMaps(tex, size=18, gain_grid=2, clusters=3, init_roughness=0.3, init_metallic=0.3)
+        core, rim = int(m.members[:, 0, 0].argmax()), int(m.members[:, 0, 8].argmax())
+        m.use_metal_colour(rate=3.0, allowed=np.isin(np.arange(3), [core, rim]))
+        with torch.no_grad():
+            m.metal_logit[rim] = np.log(0.01 / 0.99) / float(m.metal_scale[rim])   # the fit left it dielectric
+        return m, core, rim
+
+    for follow in (False, True):
+        m, core, rim = model()
+        rows = decide_metals(m, _env(), 1.0, _loss_to(bright), 12, epochs=20, lr=0.05, lr_env=0.05, ramp=10,
+                             follow=follow)
+        assert [r["cluster"] for r in rows] == ([core, rim] if follow else [core])
+        assert all(r["decision"] == "metal" for r in rows)
+    m, core, rim = model()   # the core stays as fitted: nothing follows
+    rows = decide_metals(m, _env(), 1.0, _loss_to(tex), 12, epochs=20, lr=0.05, lr_env=0.05, ramp=10, follow=True)
+    assert [(r["cluster"], r["decision"]) for r in rows] == [(core, "as fitted")]
+
+
 def test_metal_decide_validates_and_the_profiles_decide():
     from saft.appearance.config import cpu_profile
 
     AppearanceConfig(metal_colour=True, metal_decide=30).validate()
-    with pytest.raises(Exception):
-        AppearanceConfig(metal_decide=-1).validate()
-    assert cpu_profile().metal_decide == 30
+    AppearanceConfig(metal_colour=True, metal_decide=40, metal_decide_ramp=20).validate()
+    for bad in (dict(metal_decide=-1), dict(metal_decide_ramp=-1)):
+        with pytest.raises(Exception):
+            AppearanceConfig(**bad).validate()
+    p = cpu_profile()
+    assert (p.metal_decide, p.metal_decide_ramp, p.metal_decide_follow, p.metal_decide_strict) == (40, 20, True, True)
 
 
 def test_the_fit_decides_its_half_metal_clusters_and_records_it():

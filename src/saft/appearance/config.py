@@ -83,6 +83,24 @@ class AppearanceConfig:
     # threads as metal…").
     # Lost and removed: the metal clusters started at metallic 0.5, and the metal's refit from a dimmed light.
     metal_decide: int = 0
+    # metal_decide > 0: > 1: each refit moves the cluster's metallic on a straight line from its fitted value
+    # to the pin over this many of its epochs, the light and the maps following (appearance.metal_decide:
+    # pinned at once, a metal starts at 15-30x the fit's held-out loss under the light fitted for a half
+    # metal and 30 epochs do not bring it back: the lamé's threads at seed 1); 0 = pinned at once. Measured
+    # (BENCH_lame5.md) with metal_decide = 40, follow, strict: the lamé's threads found at seed 1 too
+    # (metallic 0.167 -> 0.016, relit +2.8 / +2.7 dB), at seed 0 relit -0.35 / -0.43 dB; 30 / 15 lost seed 1.
+    # Lost and removed: the refits' rates decaying after the pin (diffuse -0.20 / -0.38 dB)
+    metal_decide_ramp: int = 0
+    # metal_decide > 0: once a cluster has become metal, the metal-coloured clusters the fit left below
+    # metallic 0.05 are decided too (deciding every metal-coloured cluster from the start lost: the print's
+    # 4 % cluster made metal, relit −6.5 dB, BENCH_lame5.md) (a thread's rim, split from its core by the colour clusters: the lamé's
+    # at seed 1, metallic 0.002 after the fit); off: only [0.05, 0.95]. A cloth without a half
+    # metal is never refitted
+    metal_decide_follow: bool = False
+    # metal_decide > 0: the metal must also beat the held-out loss of the fit as it stands, not only the
+    # dielectric's refit (whose jitter at the refit's rates raises its loss: the print's 4 % cluster became
+    # metal at 0.0522 against 0.0523, the fit's own 0.0492, when every metal-coloured cluster was decided)
+    metal_decide_strict: bool = False
     # maps="guided": mean squared colour of the log-gain grid (each cell's channels minus their mean), a
     # prior that ties the gain's colour to grey so the light's colour goes to the env map (0 = off)
     lambda_gain_chroma: float = 0.0
@@ -162,8 +180,8 @@ class AppearanceConfig:
             bad("normal_grid", "normal_grid, normal_keys, lr_normals and lambda_normals must be >= 0")
         if self.metal_rate <= 0 or self.lambda_metal_blend < 0 or not (0 <= self.metal_gate <= 1):
             bad("metal_rate", "metal_rate must be > 0, lambda_metal_blend >= 0 and metal_gate lie in [0, 1]")
-        if self.metal_decide < 0:
-            bad("metal_decide", "must be >= 0 epochs (0 = off)")
+        if self.metal_decide < 0 or self.metal_decide_ramp < 0:
+            bad("metal_decide", "metal_decide and metal_decide_ramp must be >= 0 epochs (0 = off)")
         if self.gain_grid < 1 or self.clusters < 1:
             bad("clusters", "gain_grid and clusters must be >= 1")
         if self.env_levels < 1 or (self.env_height >> (self.env_levels - 1)) < 1:
@@ -221,7 +239,7 @@ def paper_profile() -> AppearanceConfig:
 # metal_gate: the lamé +3.2 / +1.9 dB diffuse, relit +1.3 to +2.6 dB; BENCHMARKS "Twelfth session's defaults").
 GUIDED = dict(maps="guided", texel_size=512, gain_grid=8, clusters=6, texture_smoothing=4.0, lambda_metallic_l1=0.01,
               normal_grid=4, normal_keys=16, lr_normals=0.03, lambda_normals=0.03, metal_colour=True, metal_gate=0.5,
-              metal_decide=30,
+              metal_decide=40, metal_decide_ramp=20, metal_decide_follow=True, metal_decide_strict=True,
               detail_trust=0.5, diffuse_shading="irradiance", frame_specular=32, texture_frames=8,
               evidence_threshold=0.01, lr_texels=0.1, lr_final_factor=0.1, init_roughness=0.6, init_metallic=0.1,
               env_levels=5, lr_env=0.05, env_height=64, env_width=128)

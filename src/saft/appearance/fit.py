@@ -344,7 +344,8 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
                                       f, m["diffuse"], m["roughness"], m["metallic"], e, spp, seed)),
                                   n_frames, cfg.metal_decide,
                                   cfg.lr_texels * cfg.lr_final_factor ** 0.5, cfg.lr_env * cfg.lr_final_factor ** 0.5,
-                                  cfg.evidence_spp, cfg.seed)
+                                  cfg.evidence_spp, cfg.seed, ramp=cfg.metal_decide_ramp,
+                                  follow=cfg.metal_decide_follow, strict=cfg.metal_decide_strict)
     env_now = env(final_weight).detach()   # after the decisions, which refit the env map
     if isinstance(model, GuidedMaps) and cfg.evidence_threshold > 0:
         evidence = cluster_evidence(model, env_now, render_frame, held_out_frames(n_frames)[1], frame_error,

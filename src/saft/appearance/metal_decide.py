@@ -38,16 +38,42 @@ def _pin(model, k: int, metal: bool) -> None:
         model.metal_logit[k] = (PIN if metal else -PIN) / float(model.metal_scale[k])
 
 
+def _set_metallic(model, k: int, metallic: float) -> None:
+    """Cluster k's metallic to this value (within sigmoid(±PIN) of 0 and 1)."""
+    m = min(max(float(metallic), float(torch.sigmoid(torch.tensor(-PIN)))), float(torch.sigmoid(torch.tensor(PIN))))
+    with torch.no_grad():
+        model.metal_logit[k] = float(np.log(m) - np.log1p(-m)) / float(model.metal_scale[k])
+
+
+def ramp_metallic(start: float, metal: bool, epoch: int, ramp: int) -> float | None:
+    """The metallic the refit's epoch `epoch` (0-based) renders with on a linear ramp of `ramp` epochs from
+    `start` to 1 (metal) or 0: (epoch + 1) / ramp of the way; None from the ramp's last epoch on (pinned)."""
+    if epoch + 1 >= ramp:
+        return None
+    return start + ((1.0 if metal else 0.0) - start) * (epoch + 1) / ramp
+
+
 def refit_pinned(model, env, weight: float, frame_loss: Callable, train: list[int], k: int, metal: bool,
-                 epochs: int, lr: float, lr_env: float, batch: int = 3, seed: int = 0) -> None:
+                 epochs: int, lr: float, lr_env: float, batch: int = 3, seed: int = 0, ramp: int = 0,
+                 start: float | None = None) -> None:
     """`epochs` Adam steps of every map parameter but the detail share (rate lr; appearance.detail decides
     which frames may teach it) and of the env map (rate lr_env: a metal's reflection is brighter than a half
     metal's, the light it was fitted with has to follow) on `batch` random frames of `train` each, cluster
     k's metallic pinned at 1 (metal) or 0; the shading normals stay as fitted.
 
+    ramp > 1 (appearance.metal_decide_ramp): the metallic is not pinned at once but moved on a straight line
+    from `start` (the fitted metallic) to the pin over the first `ramp` epochs, the light and the maps
+    following it (a metal pinned at once with the light fitted for a half metal starts 30× the fit's loss,
+    and the refit's rates do not bring it back in time).
+
     env: the env map module, env(weight) the map the renderer gets; frame_loss(frame, maps, env map, spp,
     seed) → scalar: the image loss of the maps rendered at that frame."""
-    _pin(model, k, metal)
+    ramp = min(ramp, epochs)   # a ramp longer than the refit would never reach its pin
+    ramped = ramp > 1 and start is not None
+    if ramped:
+        _set_metallic(model, k, ramp_metallic(start, metal, 0, ramp))
+    else:
+        _pin(model, k, metal)
     params = [p for name, p in model.named_parameters() if name != "detail_logit"]
     opt = torch.optim.Adam([{"params": params, "lr": lr}, {"params": list(env.parameters()), "lr": lr_env}])
     rng = np.random.default_rng(seed)
@@ -72,7 +98,11 @@ def refit_pinned(model, env, weight: float, frame_loss: Callable, train: list[in
             model.metal_logit.grad[k] = 0.0
         opt.step()
         env.clamp_()
-        _pin(model, k, metal)
+        m = ramp_metallic(start, metal, epoch + 1, ramp) if ramped else None
+        if m is None:
+            _pin(model, k, metal)
+        else:
+            _set_metallic(model, k, m)
 
 
 @torch.no_grad()
@@ -85,12 +115,15 @@ def held_out_loss(model, env, weight: float, frame_loss: Callable, held: list[in
 
 
 def decide_metals(model, env, weight: float, frame_loss: Callable, n_frames: int, epochs: int, lr: float,
-                  lr_env: float, spp: int = 4, seed: int = 0, low: float = 0.05, high: float = 0.95) -> list[dict]:
+                  lr_env: float, spp: int = 4, seed: int = 0, low: float = 0.05, high: float = 0.95,
+                  ramp: int = 0, follow: bool = False, strict: bool = False) -> list[dict]:
     """Each cluster with a metal colour whose metallic lies in [low, high] (largest first) refitted metal and
     dielectric (refit_pinned) from the model and env map as they are; both keep the metal's state where its
     held-out loss is the lower, their own otherwise. One dict per cluster decided: its metallic, the held-out
     losses (fitted, each alternative pinned before and after its refit), the refits' roughness, the decision.
-    In place."""
+    ramp: refit_pinned's ramp from the cluster's metallic as it is when its turn comes. follow: once a cluster has become metal, the metal-coloured clusters below `low` are decided
+    too (largest first; the rim of a thread whose core was found). strict: the metal must also beat the
+    held-out loss of the state it would replace (the fit as it stands). In place."""
     if model.metal is None:
         return []
     values = model.cluster_values()["metallic"].detach()
@@ -99,9 +132,13 @@ def decide_metals(model, env, weight: float, frame_loss: Callable, n_frames: int
     todo.sort(key=lambda k: -float(model.area[k]))
     train, held = held_out_frames(n_frames)
     out = []
-    for k in todo:
+    below = sorted((k for k in range(model.num_clusters) if allowed[k] and float(values[k]) < low),
+                   key=lambda k: -float(model.area[k]))
+    while todo:
+        k = todo.pop(0)
         start = copy.deepcopy((model.state_dict(), env.state_dict()))
-        row = {"cluster": k, "metallic_fitted": float(values[k]),
+        now = float(model.cluster_values()["metallic"][k].detach())   # an earlier refit may have moved it
+        row = {"cluster": k, "metallic_fitted": now,
                "held_loss_fitted": held_out_loss(model, env, weight, frame_loss, held, spp)}
         states, losses = {}, {}
         for metal, name in ((True, "metal"), (False, "dielectric")):
@@ -109,12 +146,16 @@ def decide_metals(model, env, weight: float, frame_loss: Callable, n_frames: int
             env.load_state_dict(start[1])
             _pin(model, k, metal)
             row[f"held_loss_{name}_unfitted"] = held_out_loss(model, env, weight, frame_loss, held, spp)
-            refit_pinned(model, env, weight, frame_loss, train, k, metal, epochs, lr, lr_env, seed=seed + k)
+            refit_pinned(model, env, weight, frame_loss, train, k, metal, epochs, lr, lr_env, seed=seed + k,
+                         ramp=ramp, start=now)
             losses[metal] = row[f"held_loss_{name}"] = held_out_loss(model, env, weight, frame_loss, held, spp)
             row[f"roughness_{name}"] = float(model.cluster_values()["roughness"][k].detach())
             states[metal] = copy.deepcopy((model.state_dict(), env.state_dict()))
-        keep = states[True] if losses[True] < losses[False] else start   # metal, or as the fit left it
+        wins = losses[True] < losses[False] and (not strict or losses[True] < row["held_loss_fitted"])
+        keep = states[True] if wins else start   # metal, or as the fit left it
         model.load_state_dict(keep[0])
         env.load_state_dict(keep[1])
         out.append({**row, "decision": "metal" if keep is states[True] else "as fitted"})
+        if follow and keep is states[True] and below:
+            todo, below = todo + below, []
     return out
