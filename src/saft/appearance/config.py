@@ -77,25 +77,26 @@ class AppearanceConfig:
     # the env map (normals as fitted) at the fit's rates of mid-decay (lr_texels, lr_env × √lr_final_factor), on
     # all frames but 8 evenly spaced ones; where the metal's loss on those 8 is lower than the dielectric's
     # the cluster becomes metal, otherwise the fit is left as it was (appearance.metal_decide: a thread is
-    # metal or not; the lamé's ended half metal); 0 = off. 30 in the profiles: saft's lamé at seed 0 metallic
-    # 0.150 -> 0.055, relit unseen 23.57 -> 26.09 dB, true motion 0.054 -> 0.012; at seed 1 the metal loses the
-    # test and the fit stays as it was; nothing decided on the other fabrics (BENCHMARKS.md "The lamé's gold
-    # threads as metal…").
+    # metal or not; the lamé's ended half metal); 0 = off. 40 in the profiles (with metal_decide_ramp below).
+    # 30, pinned at once: saft's lamé at seed 0 metallic 0.150 -> 0.055, relit unseen 23.57 -> 26.09 dB, true
+    # motion 0.054 -> 0.012; at seed 1 the metal lost the test and the fit stayed as it was; nothing decided on
+    # the other fabrics (BENCHMARKS.md "The lamé's gold threads as metal…").
     # Lost and removed: the metal clusters started at metallic 0.5, and the metal's refit from a dimmed light.
     metal_decide: int = 0
     # metal_decide > 0: > 1: each refit moves the cluster's metallic on a straight line from its fitted value
     # to the pin over this many of its epochs, the light and the maps following (appearance.metal_decide:
     # pinned at once, a metal starts at 15-30x the fit's held-out loss under the light fitted for a half
-    # metal and 30 epochs do not bring it back: the lamé's threads at seed 1); 0 = pinned at once. Measured
-    # (BENCH_lame5.md) with metal_decide = 40, follow, strict: the lamé's threads found at seed 1 too
-    # (metallic 0.167 -> 0.016, relit +2.8 / +2.7 dB), at seed 0 relit -0.35 / -0.43 dB; 30 / 15 lost seed 1.
-    # Lost and removed: the refits' rates decaying after the pin (diffuse -0.20 / -0.38 dB)
+    # metal and 30 epochs do not bring it back: the lamé's threads at seed 1); 0 = pinned at once. 20 in the
+    # profiles, with metal_decide = 40, follow and strict: the lamé's threads found at seed 1 too (metallic
+    # 0.167 -> 0.016, relit +2.8 / +2.7 dB), at seed 0 relit -0.35 / -0.43 dB; 30 / 15 lost seed 1 (BENCHMARKS.md,
+    # "The lamé's threads at seed 1…"). Lost and removed: the refits' rates decaying after the pin (diffuse
+    # -0.20 / -0.38 dB)
     metal_decide_ramp: int = 0
     # metal_decide > 0: once a cluster has become metal, the metal-coloured clusters the fit left below
-    # metallic 0.05 are decided too (deciding every metal-coloured cluster from the start lost: the print's
-    # 4 % cluster made metal, relit −6.5 dB, BENCH_lame5.md) (a thread's rim, split from its core by the colour clusters: the lamé's
-    # at seed 1, metallic 0.002 after the fit); off: only [0.05, 0.95]. A cloth without a half
-    # metal is never refitted
+    # metallic 0.05 are decided too (a thread's rim, split from its core by the colour clusters: the lamé's at
+    # seed 1, metallic 0.002 after the fit); off: only [0.05, 0.95]. A cloth without a half metal is never
+    # refitted. Deciding every metal-coloured cluster from the start lost: the print's 4 % cluster made metal,
+    # relit −6.5 dB (BENCHMARKS.md, "The lamé's threads at seed 1…")
     metal_decide_follow: bool = False
     # metal_decide > 0: the metal must also beat the held-out loss of the fit as it stands, not only the
     # dielectric's refit (whose jitter at the refit's rates raises its loss: the print's 4 % cluster became

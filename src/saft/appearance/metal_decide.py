@@ -121,9 +121,10 @@ def decide_metals(model, env, weight: float, frame_loss: Callable, n_frames: int
     dielectric (refit_pinned) from the model and env map as they are; both keep the metal's state where its
     held-out loss is the lower, their own otherwise. One dict per cluster decided: its metallic, the held-out
     losses (fitted, each alternative pinned before and after its refit), the refits' roughness, the decision.
-    ramp: refit_pinned's ramp from the cluster's metallic as it is when its turn comes. follow: once a cluster has become metal, the metal-coloured clusters below `low` are decided
-    too (largest first; the rim of a thread whose core was found). strict: the metal must also beat the
-    held-out loss of the state it would replace (the fit as it stands). In place."""
+    ramp: refit_pinned's ramp from the cluster's metallic as it is when its turn comes. follow: once a
+    cluster has become metal, the metal-coloured clusters below `low` are decided too (largest first; the rim
+    of a thread whose core was found). strict: the metal must also beat the held-out loss of the state it
+    would replace (the fit as it stands). In place."""
     if model.metal is None:
         return []
     values = model.cluster_values()["metallic"].detach()
