@@ -65,7 +65,7 @@ def test_fit_with_the_correction_and_the_blurred_loss_resumes():
     cfg.epochs, cfg.image_scale, cfg.frames_per_epoch, cfg.checkpoint_every = 4, 1.0, 2, 2
     cfg.normal_grid, cfg.normal_keys, cfg.lr_normals, cfg.loss_blur = 2, 0, 0.05, 1.5
     moving = fit_appearance(sc.vertices, sc.triangles, sc.uvs, sc.camera, sc.rgb, sc.mask, cfg)
-    assert "normals" not in moving.state   # the clip starts moving: the meshes' own normals (saft.scene.motion)
+    assert "normals" not in moving.state   # it starts curved in motion: the meshes' own normals (saft.scene.motion)
     at_rest = lambda a: np.concatenate([np.asarray(a)[:1], np.asarray(a)])   # frame 0 held for a frame
     verts, rgb, mask = at_rest(sc.vertices), at_rest(sc.rgb), at_rest(sc.mask)
     states = []

@@ -54,7 +54,10 @@ class AppearanceConfig:
     # keyframes in time (0 = one per frame) linearly interpolated, zero at frame 0; rate lr_normals, and
     # lambda_normals times the mean squared offset pulls it towards the meshes' own normals. For saft's
     # own motion, whose normals are off by 5-20° (BENCHMARKS "Highlights on a wrong shape"); 0 = off. Left off
-    # where the clip starts moving (saft.scene.motion): there it lost on the cotton and the lamé at both seeds.
+    # where the clip starts curved in motion (saft.scene.motion.starts_curved_in_motion: cut mid-motion): there
+    # it lost on the cotton and the lamé at both seeds. On a flat cloth already in a breeze (Newton's clips,
+    # seed 0) it is on: satin roughness 0.554 -> 0.537, plaid 0.281 -> 0.195, print 0.338 -> 0.313, cotton and
+    # lamé level (BENCHMARKS.md, "Fourteenth session").
     normal_grid: int = 0
     normal_keys: int = 8
     lr_normals: float = 0.01

@@ -32,7 +32,7 @@ from saft.appearance.texture_frames import refit_texture
 from saft.errors import SaftInputError
 from saft.io_utils import atomic_path, atomic_write_json, read_image, resize_images, write_image
 from saft.scene.camera import Camera
-from saft.scene.motion import starts_moving
+from saft.scene.motion import starts_curved_in_motion
 
 
 @dataclass
@@ -212,8 +212,10 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
     opt_env = torch.optim.Adam(env.parameters(), lr=cfg.lr_env, betas=tuple(cfg.betas_env))
     normals = None   # the learnt shading-normal correction (appearance.normals); None: the meshes' own
     correct_normals = cfg.normal_grid > 0
-    if correct_normals and starts_moving(mask):   # only from rest: on two clips cut mid-motion it lost twice
-        logging.getLogger("saft").info("appearance.normal_grid: the clip starts moving, normals left as they are")
+    if correct_normals and starts_curved_in_motion(mask, verts[0], triangles):   # not on a clip cut mid-motion:
+        # it lost twice there
+        logging.getLogger("saft").info("appearance.normal_grid: the clip starts curved in motion, normals left as "
+                                       "they are")
         correct_normals = False
     if correct_normals:
         normals = NormalCorrection(verts, triangles, uvs, cfg.normal_grid, cfg.normal_keys).to(dev)
