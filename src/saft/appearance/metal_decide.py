@@ -68,12 +68,16 @@ def refit_pinned(model, env, weight: float, frame_loss: Callable, train: list[in
 
     env: the env map module, env(weight) the map the renderer gets; frame_loss(frame, maps, env map, spp,
     seed) → scalar: the image loss of the maps rendered at that frame."""
-    ramp = min(ramp, epochs)   # a ramp longer than the refit would never reach its pin
-    ramped = ramp > 1 and start is not None
-    if ramped:
-        _set_metallic(model, k, ramp_metallic(start, metal, 0, ramp))
-    else:
-        _pin(model, k, metal)
+    ramp = min(ramp, epochs) if start is not None else 0   # a ramp longer than the refit never reaches its pin
+
+    def hold(epoch: int) -> None:   # cluster k's metallic for this epoch: on the ramp, then pinned
+        m = ramp_metallic(start, metal, epoch, ramp) if ramp > 1 else None
+        if m is None:
+            _pin(model, k, metal)
+        else:
+            _set_metallic(model, k, m)
+
+    hold(0)
     params = [p for name, p in model.named_parameters() if name != "detail_logit"]
     opt = torch.optim.Adam([{"params": params, "lr": lr}, {"params": list(env.parameters()), "lr": lr_env}])
     rng = np.random.default_rng(seed)
@@ -98,11 +102,7 @@ def refit_pinned(model, env, weight: float, frame_loss: Callable, train: list[in
             model.metal_logit.grad[k] = 0.0
         opt.step()
         env.clamp_()
-        m = ramp_metallic(start, metal, epoch + 1, ramp) if ramped else None
-        if m is None:
-            _pin(model, k, metal)
-        else:
-            _set_metallic(model, k, m)
+        hold(epoch + 1)
 
 
 @torch.no_grad()
