@@ -21,6 +21,9 @@ def test_boost_is_none_while_every_row_in_use_carries_the_same_cuts():
     assert row_boost(guard, frames=32, rows=31) is None              # a cut with every frame in use
     guard.cut_frames = [9]
     assert row_boost(guard, frames=9, rows=31) is None               # the frames of the cut, none added since
+    recovering = StepGuard(ratio=1.3, decay=0.5, recover_after=10)
+    recovering.cut_frames = [9]
+    assert row_boost(recovering, frames=20, rows=31) is None         # its cuts do not last: nothing to keep
 
 
 def test_rows_added_after_a_cut_are_stepped_without_it():

@@ -29,10 +29,11 @@ def row_boost(guard: StepGuard, frames: int, rows: int) -> torch.Tensor | None:
     """(rows,) float64: the factor of each transition's step over the guard's global rate while `frames` frames
     are in use: 1 / decay for every cut made before the transition came into use (transition r, from frame r
     to r + 1, is in use from `r + 2` frames on; a cut made with f frames in use covers the rows below f - 1).
-    None where it is 1 for every row in use (the usual step)."""
-    boost = torch.ones(rows, dtype=torch.float64)
-    if guard.decay <= 0:
+    None where it is 1 for every row in use (the usual step), and where the guard raises its rate again after
+    calm epochs (shape.backtrack_recover_epochs > 0: its cuts do not last, the rows' rates follow it)."""
+    if guard.decay <= 0 or guard.recover_after > 0:   # a rate raised again after calm epochs: cuts do not last
         return None
+    boost = torch.ones(rows, dtype=torch.float64)
     for f in guard.cut_frames:
         boost[max(f - 1, 0):] /= guard.decay
     in_use = max(min(frames - 1, rows), 0)
