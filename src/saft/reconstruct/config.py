@@ -287,6 +287,11 @@ class ShapeConfig:
     # After this many epochs in a row without a backtrack, the rate is divided by backtrack_decay again, up
     # to the full rate (0 = a cut lasts for the rest of the run).
     backtrack_recover_epochs: int = 0
+    # A cut applies only to the per-frame accelerations of the frames in use when it was made; a frame added
+    # later is stepped without it (saft.reconstruct.new_frame_rate; False = every cut slows every later frame,
+    # as before). On Newton's appearance clips an early cut (frame 9-13) left the late gust's frames at half
+    # the rate and they fell behind the billow (BENCH_gust.md). Off by default.
+    backtrack_new_frames: bool = False
     center_vertex_accel: bool = True      # subtract the mean per-vertex acceleration before each epoch
     warm_start_new_frames: bool = True    # a newly added frame starts from the previous frame's accelerations
     # Start of the constant acceleration: "gravity" (the reference), "zero", or "auto" = gravity when the

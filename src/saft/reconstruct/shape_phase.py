@@ -37,6 +37,7 @@ from saft.reconstruct.force_field import affine_basis, total_accelerations
 from saft.reconstruct.initial_velocity import initial_velocity, start_velocity, velocity_prior
 from saft.reconstruct.light import curved_start_in_motion, initial_light, plain_cloth
 from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_loss
+from saft.reconstruct import new_frame_rate
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
 from saft.reconstruct.step_guard import StepGuard
 from saft.reconstruct.air_drag import run_damping_and_drag
@@ -477,7 +478,7 @@ def run_shape_phase(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeState, p
             lr = lr_factor(state.epoch, sched.first_final_epoch(state.epoch), cfg) * state.guard.lr_scale
             state.optimizer.set_lr_factor(lr)
             frozen = outside_window(params, start)
-            state.optimizer.step()
+            new_frame_rate.step(state.optimizer, params, state.guard, frames, cfg.backtrack_new_frames)
             restore_outside_window(params, start, frozen)
         if state.states is not None:   # a full pass's step moved every acceleration: refresh before the next window
             state.states.stepped(start)

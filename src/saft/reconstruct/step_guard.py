@@ -38,6 +38,7 @@ class StepGuard:
     calm: int = 0                      # epochs since the last backtrack or recovery
     frames: int = -1                   # frames in use the lowest loss refers to
     lowest: float = math.inf
+    cut_frames: list[int] = field(default_factory=list)   # frames in use at each backtrack (new_frame_rate.py)
     _snapshot: dict | None = field(default=None, repr=False)
 
     def check(self, frames: int, loss: float, tensors: dict[str, torch.Tensor], optimizer: ClippedAdam) -> bool:
@@ -69,16 +70,19 @@ class StepGuard:
         optimizer.load_state_dict(copy.deepcopy(snap["optimizer"]))
         self.lr_scale *= self.decay
         self.backtracks += 1
+        self.cut_frames.append(int(frames))
         self.calm = 0
         return True
 
     def state_dict(self) -> dict:
-        return {"lr_scale": self.lr_scale, "backtracks": self.backtracks, "calm": self.calm}
+        return {"lr_scale": self.lr_scale, "backtracks": self.backtracks, "calm": self.calm,
+                "cut_frames": list(self.cut_frames)}
 
     def load_state_dict(self, state: dict) -> None:
         self.lr_scale = float(state.get("lr_scale", 1.0))
         self.backtracks = int(state.get("backtracks", 0))
         self.calm = int(state.get("calm", 0))
+        self.cut_frames = [int(f) for f in state.get("cut_frames", [])]
 
 
 __all__ = ["StepGuard"]
