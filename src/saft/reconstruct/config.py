@@ -137,6 +137,13 @@ class ShapeConfig:
     # with physics.swing_run_damping 0.995: 8.31 -> 6.34 at 1.0; ALONE (damping 0.99, the rates x0.1) it
     # loses: 9.94 -> 15.95 (BENCHMARKS.md, "The swinging cloth…"): the two are defaults together.
     swing_lambda_sil: float = 1.0
+    # A silhouette pull that grows with the gap (saft.reconstruct.silhouette_reach; 0 = off, the plain
+    # coverage MSE): each pixel of the observed mask weighs 1 + sil_reach_gain * (min(d, r) / r)^2 in the
+    # silhouette term, d its distance in pixels to the mask's border, r = sil_reach_px; so a rendered edge
+    # that stops short of the mask is pulled out harder the farther it is (R1's left edge, frames 40-49:
+    # 10-20 px inside the mask; BENCHMARKS.md "R1's border depth").
+    sil_reach_px: float = 0.0
+    sil_reach_gain: float = 16.0
     lambda_energy: float = 2.0            # R_E, stiffnesses detached
     lambda_force: float = 2e-4            # R_F
     force_directions: Literal["current", "template"] = "current"  # viewing directions for R_F

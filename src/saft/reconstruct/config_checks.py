@@ -38,6 +38,8 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "shape.lambda_image": (0, INF, True),
     "shape.lambda_sil": (0, INF, True),
     "shape.swing_lambda_sil": (0, INF, True),
+    "shape.sil_reach_px": (0, 255, True),
+    "shape.sil_reach_gain": (0, INF, True),
     "shape.lambda_energy": (0, INF, True),
     "shape.lambda_force": (0, INF, True),
     "shape.force_along_weight": (0, 1, True),
