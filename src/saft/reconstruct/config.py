@@ -141,7 +141,10 @@ class ShapeConfig:
     # coverage MSE): each pixel of the observed mask weighs 1 + sil_reach_gain * (min(d, r) / r)^2 in the
     # silhouette term, d its distance in pixels to the mask's border, r = sil_reach_px; so a rendered edge
     # that stops short of the mask is pulled out harder the farther it is (R1's left edge, frames 40-49:
-    # 10-20 px inside the mask; BENCHMARKS.md "R1's border depth").
+    # 10-20 px inside the mask; BENCHMARKS.md "R1's border depth"). Off by default: r 24, gain 16 gave R1
+    # 0.490 / 0.486 / 0.476 at perturbations 0 / 1 / 3 (main 0.416 / 0.446 / 0.500; median +9 %) and did not
+    # move the edge (its inner rows are held by their tracks): it moved the left strip 3-5 mm towards the
+    # camera in every frame instead (BENCH_sil.md).
     sil_reach_px: float = 0.0
     sil_reach_gain: float = 16.0
     lambda_energy: float = 2.0            # R_E, stiffnesses detached
