@@ -9,7 +9,8 @@ import torch
 import torch.nn.functional as F
 
 from saft.reconstruct.losses import silhouette_loss
-from saft.reconstruct.silhouette_reach import inside_distance, reach_distances, reach_weights, silhouette_weights
+from saft.reconstruct.silhouette_reach import (inside_distance, reach_distances, reach_px, reach_weights,
+                                               silhouette_weights)
 from saft.render import render_cloth
 from saft.scene.camera import Camera
 
@@ -105,17 +106,28 @@ def test_the_pull_on_a_short_edge_points_outwards_and_grows_with_the_gap():
     assert reach_near < 1.5 * plain_near                      # and stays near 1x for a small one
 
 
+def test_the_reach_of_pinned_and_unpinned_scenes():
+    from saft.reconstruct.config import ShapeConfig
+
+    cfg = ShapeConfig(sil_reach_px=8.0, sil_reach_px_pinned=24.0)
+    assert reach_px(cfg, None) == 8.0 and reach_px(cfg, torch.zeros(0, dtype=torch.long)) == 8.0
+    assert reach_px(cfg, torch.tensor([0, 5])) == 24.0
+    assert reach_px(ShapeConfig(), torch.tensor([0])) == 0.0 and reach_px(ShapeConfig(), None) == 0.0
+
+
 def test_config_default_off_and_range_checked():
     from saft.errors import SaftInputError
     from saft.reconstruct.config import ShapeConfig, load_saft_config
 
-    assert ShapeConfig().sil_reach_px == 0.0
+    assert ShapeConfig().sil_reach_px == 0.0 and ShapeConfig().sil_reach_px_pinned == 0.0
     assert load_saft_config(None, ["shape.sil_reach_px=24"]).shape.sil_reach_px == 24.0
     with pytest.raises(SaftInputError, match="shape.sil_reach_px must lie in"):
         load_saft_config(None, ["shape.sil_reach_px=-1"])
+    with pytest.raises(SaftInputError, match="shape.sil_reach_px_pinned must lie in"):
+        load_saft_config(None, ["shape.sil_reach_px_pinned=300"])
     with pytest.raises(SaftInputError, match="shape.sil_reach_gain must lie in"):
         load_saft_config(None, ["shape.sil_reach_gain=-2"])
 
 
 def test_a_reconstruction_runs_with_it(tiny_reconstruction):
-    tiny_reconstruction(["shape.sil_reach_px=6"])
+    tiny_reconstruction(["shape.sil_reach_px=6", "shape.sil_reach_px_pinned=6"])

@@ -146,6 +146,11 @@ class ShapeConfig:
     # move the edge (its inner rows are held by their tracks): it moved the left strip 3-5 mm towards the
     # camera in every frame instead (BENCH_sil.md).
     sil_reach_px: float = 0.0
+    # The same in scenes with pinned vertices (0 = off), where the pins hold the depth that a silhouette
+    # pull otherwise trades for nearness (silhouette_reach.reach_px). r 24, gain 16 on the Newton pinned
+    # scenes: flag 18.99 -> 13.91, side gust 22.34 -> 20.99, gust 1.157 -> 1.124, fold 1.140 -> 1.114,
+    # corners 1.303 -> 1.330, one corner 6.35 -> 6.385 (one run each; BENCH_sil.md).
+    sil_reach_px_pinned: float = 0.0
     sil_reach_gain: float = 16.0
     lambda_energy: float = 2.0            # R_E, stiffnesses detached
     lambda_force: float = 2e-4            # R_F

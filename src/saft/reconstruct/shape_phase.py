@@ -37,7 +37,7 @@ from saft.reconstruct.force_field import affine_basis, total_accelerations
 from saft.reconstruct.initial_velocity import initial_velocity, start_velocity, velocity_prior
 from saft.reconstruct.light import curved_start_in_motion, initial_light, plain_cloth
 from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_loss
-from saft.reconstruct.silhouette_reach import silhouette_weights
+from saft.reconstruct.silhouette_reach import reach_px, silhouette_weights
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
 from saft.reconstruct.step_guard import StepGuard
 from saft.reconstruct.air_drag import run_damping_and_drag
@@ -382,7 +382,7 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
                 rgb, mask = rgb * covered.unsqueeze(-1), mask * covered
             n = hi - lo
             l_img = image_loss(rgb, ctx.target_rgb[start + lo:start + hi]) * (n / n_win)
-            w_sil = silhouette_weights(ctx.target_mask, start + lo, start + hi, cfg.sil_reach_px, cfg.sil_reach_gain)
+            w_sil = silhouette_weights(ctx.target_mask, start + lo, start + hi, reach_px(cfg, sim.pinned), cfg.sil_reach_gain)
             l_sil = silhouette_loss(mask, ctx.target_mask[start + lo:start + hi], w_sil) * (n / n_win)
             chunk = cfg.lambda_image * l_img + cfg.lambda_sil * l_sil
             if chunk.requires_grad:

@@ -6,7 +6,8 @@ how far the observed mask reaches beyond: a rendered edge 15 px inside the mask 
 1 px inside. On R1 the image-left edge strip of frames 40-49 ends 10-20 px inside the mask on every row of
 the lower half (BENCHMARKS.md, "R1's border depth"), held there by the other terms.
 
-With shape.sil_reach_px = r > 0 every pixel of the mask weighs
+With shape.sil_reach_px = r > 0 (shape.sil_reach_px_pinned in a scene with pinned vertices: reach_px)
+every pixel of the mask weighs
 
     w = 1 + sil_reach_gain · (min(d, r) / r)²
 
@@ -64,6 +65,14 @@ def reach_weights(distances: torch.Tensor, reach_px: float, gain: float, dtype=t
     return 1.0 + gain * s.clamp(max=1.0) ** 2
 
 
+def reach_px(cfg, pinned) -> float:
+    """The run's reach: shape.sil_reach_px_pinned where the scene pins vertices, shape.sil_reach_px where
+    nothing does (`pinned`: the simulator's pinned indices or None). Without pins nothing holds the cloth's
+    depth, and a pull on the silhouette is met by moving the cloth towards the camera (perspective makes it
+    project larger) instead of widening it: R1's left strip 3-5 mm nearer in every frame (BENCH_sil.md)."""
+    return cfg.sil_reach_px if pinned is None or len(pinned) == 0 else cfg.sil_reach_px_pinned
+
+
 def silhouette_weights(target_mask: torch.Tensor, lo: int, hi: int, reach_px: float,
                        gain: float) -> torch.Tensor | None:
     """The weights of frames lo..hi-1 (hi - lo, H, W), or None when the option is off (reach_px <= 0 or
@@ -73,4 +82,4 @@ def silhouette_weights(target_mask: torch.Tensor, lo: int, hi: int, reach_px: fl
     return reach_weights(reach_distances(target_mask, reach_px)[lo:hi], reach_px, gain, target_mask.dtype)
 
 
-__all__ = ["inside_distance", "reach_distances", "reach_weights", "silhouette_weights"]
+__all__ = ["inside_distance", "reach_distances", "reach_px", "reach_weights", "silhouette_weights"]
