@@ -13,9 +13,13 @@ def image_loss(rendered: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return F.mse_loss(rendered, target)
 
 
-def silhouette_loss(mask: torch.Tensor, target_mask: torch.Tensor) -> torch.Tensor:
-    """Mean squared error of the antialiased coverage against the target mask: (F, H, W) each."""
-    return F.mse_loss(mask, target_mask)
+def silhouette_loss(mask: torch.Tensor, target_mask: torch.Tensor,
+                    weight: torch.Tensor | None = None) -> torch.Tensor:
+    """Mean squared error of the antialiased coverage against the target mask: (F, H, W) each; with
+    `weight` (F, H, W) each pixel's squared error weighs that much (saft.reconstruct.silhouette_reach)."""
+    if weight is None:
+        return F.mse_loss(mask, target_mask)
+    return (weight * (mask - target_mask) ** 2).mean()
 
 
 def force_regularizer(accel: torch.Tensor, positions: torch.Tensor, camera_center: torch.Tensor,

@@ -4,18 +4,17 @@ Each epoch simulates from the template through the frames in use and renders the
 
     L = λ_im·L_im + λ_sil·L_sil + λ_E·R_E + λ_F·R_F + λ_track·L_track + λ_A·R_A
 
-L_im, L_sil: mean squared RGB / mask errors averaged over the frames in use; R_E: the deformation energy of
-the simulated frames with the stiffnesses detached (it regularizes the geometry, not the material); R_F:
-the size of the external accelerations beyond the constant one, their component along the viewing
-directions of the CURRENT simulated vertices (or the template's) weighted by shape.force_along_weight (or
-force_along_weight_pinned when vertices are pinned; the paper: 0); L_track: the distance of the projected
-vertices to their optical-flow point tracks (saft.reconstruct.tracks; not in the paper); R_A: the held share of the
-soft anchors (ShapeSimulator.held_share; not in the paper); R_V: the size of the learned velocity at frame 0
-(saft.reconstruct.initial_velocity; not in the paper). The optimized parameters are log10 Y, B, S (clamped to their
-ranges), a constant acceleration (gravity + mean wind), per-vertex per-frame accelerations and a per-frame affine
-acceleration field over the template (saft.reconstruct.force_field; not in the paper) and the relative shading's
-light (saft.reconstruct.light) and, with soft anchors (shape.anchors), log10 of each vertex's anchor stiffness and,
-with shape.lr_v0 > 0, the affine velocity at frame 0 (from the tracks), each by its own clipped Adam.
+L_im, L_sil: mean squared RGB / mask errors averaged over the frames in use; R_E: the deformation energy of the
+simulated frames with the stiffnesses detached; R_F: the size of the external accelerations beyond the constant one,
+their component along the viewing directions of the CURRENT simulated vertices (or the template's) weighted by
+shape.force_along_weight (or force_along_weight_pinned when vertices are pinned; the paper: 0); L_track: the distance
+of the projected vertices to their optical-flow point tracks (saft.reconstruct.tracks; not in the paper); R_A: the
+held share of the soft anchors (ShapeSimulator.held_share; not in the paper); R_V: the size of the learned velocity
+at frame 0 (saft.reconstruct.initial_velocity; not in the paper). The optimized parameters are log10 Y, B, S (clamped
+to their ranges), a constant acceleration (gravity + mean wind), per-vertex per-frame accelerations and a per-frame
+affine acceleration field over the template (saft.reconstruct.force_field; not in the paper) and the relative
+shading's light (saft.reconstruct.light) and, with soft anchors (shape.anchors), log10 of each vertex's anchor
+stiffness and, with shape.lr_v0 > 0, the affine velocity at frame 0 (from the tracks), each by its own clipped Adam.
 """
 
 from __future__ import annotations
@@ -38,6 +37,7 @@ from saft.reconstruct.initial_velocity import initial_velocity, start_velocity, 
 from saft.reconstruct.light import curved_start_in_motion, initial_light, plain_cloth
 from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_loss
 from saft.reconstruct import new_frame_rate
+from saft.reconstruct.silhouette_reach import reach_px, silhouette_weights
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
 from saft.reconstruct.step_guard import StepGuard
 from saft.reconstruct.air_drag import run_damping_and_drag
@@ -382,7 +382,9 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
                 rgb, mask = rgb * covered.unsqueeze(-1), mask * covered
             n = hi - lo
             l_img = image_loss(rgb, ctx.target_rgb[start + lo:start + hi]) * (n / n_win)
-            l_sil = silhouette_loss(mask, ctx.target_mask[start + lo:start + hi]) * (n / n_win)
+            w_sil = silhouette_weights(ctx.target_mask, start + lo, start + hi, reach_px(cfg, sim.pinned),
+                                       cfg.sil_reach_gain)
+            l_sil = silhouette_loss(mask, ctx.target_mask[start + lo:start + hi], w_sil) * (n / n_win)
             chunk = cfg.lambda_image * l_img + cfg.lambda_sil * l_sil
             if chunk.requires_grad:
                 chunk.backward()
