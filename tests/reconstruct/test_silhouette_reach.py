@@ -106,28 +106,35 @@ def test_the_pull_on_a_short_edge_points_outwards_and_grows_with_the_gap():
     assert reach_near < 1.5 * plain_near                      # and stays near 1x for a small one
 
 
-def test_the_reach_of_pinned_and_unpinned_scenes():
+def test_the_reach_acts_only_where_the_scene_pins_vertices():
     from saft.reconstruct.config import ShapeConfig
 
-    cfg = ShapeConfig(sil_reach_px=8.0, sil_reach_px_pinned=24.0)
-    assert reach_px(cfg, None) == 8.0 and reach_px(cfg, torch.zeros(0, dtype=torch.long)) == 8.0
+    cfg = ShapeConfig(sil_reach_px=24.0)
+    assert reach_px(cfg, None) == 0.0 and reach_px(cfg, torch.zeros(0, dtype=torch.long)) == 0.0
     assert reach_px(cfg, torch.tensor([0, 5])) == 24.0
-    assert reach_px(ShapeConfig(), torch.tensor([0])) == 0.0 and reach_px(ShapeConfig(), None) == 0.0
+    assert reach_px(ShapeConfig(sil_reach_px=0.0), torch.tensor([0])) == 0.0
 
 
-def test_config_default_off_and_range_checked():
+def test_config_range_checked():
     from saft.errors import SaftInputError
-    from saft.reconstruct.config import ShapeConfig, load_saft_config
+    from saft.reconstruct.config import load_saft_config
 
-    assert ShapeConfig().sil_reach_px == 0.0 and ShapeConfig().sil_reach_px_pinned == 0.0
-    assert load_saft_config(None, ["shape.sil_reach_px=24"]).shape.sil_reach_px == 24.0
+    assert load_saft_config(None, ["shape.sil_reach_px=12"]).shape.sil_reach_px == 12.0
     with pytest.raises(SaftInputError, match="shape.sil_reach_px must lie in"):
         load_saft_config(None, ["shape.sil_reach_px=-1"])
-    with pytest.raises(SaftInputError, match="shape.sil_reach_px_pinned must lie in"):
-        load_saft_config(None, ["shape.sil_reach_px_pinned=300"])
+    with pytest.raises(SaftInputError, match="shape.sil_reach_px must lie in"):
+        load_saft_config(None, ["shape.sil_reach_px=300"])
     with pytest.raises(SaftInputError, match="shape.sil_reach_gain must lie in"):
         load_saft_config(None, ["shape.sil_reach_gain=-2"])
 
 
-def test_a_reconstruction_runs_with_it(tiny_reconstruction):
-    tiny_reconstruction(["shape.sil_reach_px=6", "shape.sil_reach_px_pinned=6"])
+def test_a_pinned_reconstruction_moves_with_it(tiny_reconstruction):
+    import shutil
+
+    from saft.result import read_result
+
+    out = tiny_reconstruction(["shape.sil_reach_px=0"])
+    off = read_result(out).vertices.copy()
+    shutil.rmtree(out)
+    on = read_result(tiny_reconstruction(["shape.sil_reach_px=6"])).vertices
+    assert on.shape == off.shape and not np.allclose(on, off)   # the hanging cloth is pinned: the term acts

@@ -137,20 +137,16 @@ class ShapeConfig:
     # with physics.swing_run_damping 0.995: 8.31 -> 6.34 at 1.0; ALONE (damping 0.99, the rates x0.1) it
     # loses: 9.94 -> 15.95 (BENCHMARKS.md, "The swinging cloth…"): the two are defaults together.
     swing_lambda_sil: float = 1.0
-    # A silhouette pull that grows with the gap (saft.reconstruct.silhouette_reach; 0 = off, the plain
-    # coverage MSE): each pixel of the observed mask weighs 1 + sil_reach_gain * (min(d, r) / r)^2 in the
-    # silhouette term, d its distance in pixels to the mask's border, r = sil_reach_px; so a rendered edge
-    # that stops short of the mask is pulled out harder the farther it is (R1's left edge, frames 40-49:
-    # 10-20 px inside the mask; BENCHMARKS.md "R1's border depth"). Off by default: r 24, gain 16 gave R1
-    # 0.490 / 0.486 / 0.476 at perturbations 0 / 1 / 3 (main 0.416 / 0.446 / 0.500; median +9 %) and did not
-    # move the edge (its inner rows are held by their tracks): it moved the left strip 3-5 mm towards the
-    # camera in every frame instead (BENCH_sil.md).
+    # A silhouette pull that grows with the gap, in scenes with pinned vertices only (saft.reconstruct.
+    # silhouette_reach; 0 = off, the plain coverage MSE): each pixel of the observed mask weighs
+    # 1 + sil_reach_gain * (min(d, r) / r)^2 in the silhouette term, d its distance in pixels to the mask's
+    # border, r = sil_reach_px; so a rendered edge that stops short of the mask is pulled out harder the
+    # farther it is. The pins hold the depth that such a pull otherwise trades for nearness: without pins
+    # (r 24, gain 16) R1 0.446 -> 0.486 (median of 3 perturbed runs) and the unpinned Newton gust +11 %,
+    # so an unpinned scene keeps the plain term. Pinned, one run each: Newton flag 18.99 -> 13.91, side gust
+    # 22.34 -> 20.99, gust 1.157 -> 1.124, fold 1.140 -> 1.114, corners +2 %, one corner +0.6 %, demo level
+    # (BENCHMARKS.md, "A silhouette pull with reach at the border").
     sil_reach_px: float = 0.0
-    # The same in scenes with pinned vertices (0 = off), where the pins hold the depth that a silhouette
-    # pull otherwise trades for nearness (silhouette_reach.reach_px). r 24, gain 16 on the Newton pinned
-    # scenes: flag 18.99 -> 13.91, side gust 22.34 -> 20.99, gust 1.157 -> 1.124, fold 1.140 -> 1.114,
-    # corners 1.303 -> 1.330, one corner 6.35 -> 6.385 (one run each; BENCH_sil.md).
-    sil_reach_px_pinned: float = 0.0
     sil_reach_gain: float = 16.0
     lambda_energy: float = 2.0            # R_E, stiffnesses detached
     lambda_force: float = 2e-4            # R_F

@@ -39,7 +39,6 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "shape.lambda_sil": (0, INF, True),
     "shape.swing_lambda_sil": (0, INF, True),
     "shape.sil_reach_px": (0, 255, True),
-    "shape.sil_reach_px_pinned": (0, 255, True),
     "shape.sil_reach_gain": (0, INF, True),
     "shape.lambda_energy": (0, INF, True),
     "shape.lambda_force": (0, INF, True),

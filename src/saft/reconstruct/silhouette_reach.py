@@ -6,8 +6,7 @@ how far the observed mask reaches beyond: a rendered edge 15 px inside the mask 
 1 px inside. On R1 the image-left edge strip of frames 40-49 ends 10-20 px inside the mask on every row of
 the lower half (BENCHMARKS.md, "R1's border depth"), held there by the other terms.
 
-With shape.sil_reach_px = r > 0 (shape.sil_reach_px_pinned in a scene with pinned vertices: reach_px)
-every pixel of the mask weighs
+With shape.sil_reach_px = r > 0, in a scene with pinned vertices (reach_px), every pixel of the mask weighs
 
     w = 1 + sil_reach_gain · (min(d, r) / r)²
 
@@ -66,11 +65,12 @@ def reach_weights(distances: torch.Tensor, reach_px: float, gain: float, dtype=t
 
 
 def reach_px(cfg, pinned) -> float:
-    """The run's reach: shape.sil_reach_px_pinned where the scene pins vertices, shape.sil_reach_px where
-    nothing does (`pinned`: the simulator's pinned indices or None). Without pins nothing holds the cloth's
-    depth, and a pull on the silhouette is met by moving the cloth towards the camera (perspective makes it
-    project larger) instead of widening it: R1's left strip 3-5 mm nearer in every frame (BENCH_sil.md)."""
-    return cfg.sil_reach_px if pinned is None or len(pinned) == 0 else cfg.sil_reach_px_pinned
+    """The run's reach: shape.sil_reach_px where the scene pins vertices, 0 (off) where nothing does
+    (`pinned`: the simulator's pinned indices or None). Without pins nothing holds the cloth's depth, and a
+    pull on the silhouette is met by moving the cloth towards the camera (perspective makes it project
+    larger) instead of widening it: R1's left strip 3-5 mm nearer in every frame (BENCHMARKS.md, "A
+    silhouette pull with reach at the border")."""
+    return 0.0 if pinned is None or len(pinned) == 0 else cfg.sil_reach_px
 
 
 def silhouette_weights(target_mask: torch.Tensor, lo: int, hi: int, reach_px: float,
