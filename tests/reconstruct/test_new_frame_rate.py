@@ -9,9 +9,9 @@ from saft.reconstruct.step_guard import StepGuard
 from saft.reconstruct.new_frame_rate import row_boost, step
 
 
-def test_off_by_default():
+def test_on_by_default():
     from saft.reconstruct.config import ShapeConfig
-    assert ShapeConfig().backtrack_new_frames is False
+    assert ShapeConfig().backtrack_new_frames is True
 
 
 def test_boost_is_none_while_every_row_in_use_carries_the_same_cuts():

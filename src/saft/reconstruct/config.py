@@ -145,8 +145,9 @@ class ShapeConfig:
     # (r 24, gain 16) R1 0.446 -> 0.486 (median of 3 perturbed runs) and the unpinned Newton gust +11 %,
     # so an unpinned scene keeps the plain term. Pinned, one run each: Newton flag 18.99 -> 13.91, side gust
     # 22.34 -> 20.99, gust 1.157 -> 1.124, fold 1.140 -> 1.114, corners +2 %, one corner +0.6 %, demo level
-    # (BENCHMARKS.md, "A silhouette pull with reach at the border").
-    sil_reach_px: float = 0.0
+    # (BENCHMARKS.md, "A silhouette pull with reach at the border"); with backtrack_new_frames the Newton
+    # appearance clips cotton 47.40 -> 13.20, satin 20.97 -> 8.48, plaid 5.18 -> 4.67 (fifteenth session).
+    sil_reach_px: float = 24.0
     sil_reach_gain: float = 16.0
     lambda_energy: float = 2.0            # R_E, stiffnesses detached
     lambda_force: float = 2e-4            # R_F
@@ -301,8 +302,10 @@ class ShapeConfig:
     # A cut applies only to the per-frame accelerations of the frames in use when it was made; a frame added
     # later is stepped without it (saft.reconstruct.new_frame_rate; False = every cut slows every later frame,
     # as before). On Newton's appearance clips an early cut (frame 9-13) left the late gust's frames at half
-    # the rate and they fell behind the billow (BENCH_gust.md). Off by default.
-    backtrack_new_frames: bool = False
+    # the rate and they fell behind the billow: print 11.02 -> 0.83, demo 0.358 -> 0.303, R1 perturbations
+    # 0 / 1 / 3 0.416 / 0.438 / 0.500 -> 0.452 / 0.416 / 0.500, every run without an early cut bit for bit
+    # (BENCHMARKS.md, "Newton's appearance clips: why the gust is lost…"; default since the fifteenth session).
+    backtrack_new_frames: bool = True
     center_vertex_accel: bool = True      # subtract the mean per-vertex acceleration before each epoch
     warm_start_new_frames: bool = True    # a newly added frame starts from the previous frame's accelerations
     # Start of the constant acceleration: "gravity" (the reference), "zero", or "auto" = gravity when the

@@ -1,11 +1,12 @@
 """A backtrack's rate cut kept to the frames it was made on: frames added later start at the full rate (issue 29;
-not in the paper; shape.backtrack_new_frames, off by default).
+not in the paper; shape.backtrack_new_frames, on by default).
 
 The step guard (saft.reconstruct.step_guard) cuts every learning rate for the rest of the run when an epoch's
 loss jumps. A cut made early, while the first frames are fitted, then also slows every frame added after it: on
 Newton's appearance clips (a flat cloth in a breeze, a gust late in the clip) a cut at frame 9-13 leaves the
 gust's frames, added 10-20 frames later, with half the rate for their few epochs each; they fall behind the
-billow and the final all-frame epochs do not bring them back (BENCH_gust.md).
+billow and the final all-frame epochs do not bring them back (BENCHMARKS.md, "Newton's appearance clips: why
+the gust is lost…").
 
 With the option on, a cut applies to the per-frame accelerations (shape_phase.ShapeParams.vertex_accel and
 field_accel, window_hold.per_frame) of the transitions in use when it was made; a transition that comes into use
