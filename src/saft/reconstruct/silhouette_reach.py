@@ -19,20 +19,18 @@ beyond the mask weigh 1, as before: the term only pulls an edge out to the mask,
 border w ~ 1 on both sides, so the coverage's optimum does not move.
 
 The distances are computed once per video (scipy's exact Euclidean transform, capped at r, kept as uint8)
-and memoised on the target tensor.
+and memoised by the target tensor's identity (saft.render.topology.TensorCache).
 """
 
 from __future__ import annotations
-
-import weakref
 
 import numpy as np
 import torch
 from scipy.ndimage import distance_transform_edt
 
-# id(target) -> (weak reference to the target, reach_px, distances); a tensor compares elementwise, so it
-# cannot key a WeakKeyDictionary.
-_CACHE: dict[int, tuple[weakref.ref, float, torch.Tensor]] = {}
+from saft.render.topology import TensorCache
+
+_DISTANCES = TensorCache()   # by the target mask's identity and the reach: its capped distances
 
 
 def inside_distance(mask: np.ndarray, cap: float) -> np.ndarray:
@@ -45,17 +43,13 @@ def inside_distance(mask: np.ndarray, cap: float) -> np.ndarray:
 
 def reach_distances(target_mask: torch.Tensor, reach_px: float) -> torch.Tensor:
     """(N, H, W) uint8 capped inside distances of every frame's mask, on the mask's device; memoised."""
-    hit = _CACHE.get(id(target_mask))
-    if hit is not None and hit[0]() is target_mask and hit[1] == reach_px:
-        return hit[2]
+    hit = _DISTANCES.get(target_mask, reach_px)
+    if hit is not None:
+        return hit
     cap = min(float(reach_px), 255.0)
     masks = target_mask.detach().cpu().numpy()
     d = np.stack([np.rint(inside_distance(m, cap)) for m in masks]).astype(np.uint8)
-    out = torch.from_numpy(d).to(target_mask.device)
-    for key in [k for k, v in _CACHE.items() if v[0]() is None]:   # targets that are gone
-        del _CACHE[key]
-    _CACHE[id(target_mask)] = (weakref.ref(target_mask), reach_px, out)
-    return out
+    return _DISTANCES.put(target_mask, torch.from_numpy(d).to(target_mask.device), reach_px)
 
 
 def reach_weights(distances: torch.Tensor, reach_px: float, gain: float, dtype=torch.float32) -> torch.Tensor:
