@@ -112,7 +112,8 @@ class AppearanceConfig:
     # end a glossy dielectric, roughness 0.12-0.35, so no cluster was ever decided; every other metal-coloured
     # cluster of the five fabrics on both cloths ended rough, >= 0.72). Every cluster decided from below 0.05
     # starts its metal refit with the colour of its highlights (metal_gate.highlight_hue), not the metal colour
-    # the fit left: at metallic 0.002 Adam drifts it freely (the Newton threads' to (1, 1, 0.94)); 0 = off
+    # the fit left: at metallic 0.002 Adam drifts it freely (the Newton threads' from the gold they start at,
+    # (0.80, 0.57, 0.24), to (0.74, 0.47, 0.52) on saft's motion, (0.89, 0.89, 0.84) on the true one); 0 = off
     metal_decide_glossy: float = 0.0
     # maps="guided": mean squared colour of the log-gain grid (each cell's channels minus their mean), a
     # prior that ties the gain's colour to grey so the light's colour goes to the env map (0 = off)

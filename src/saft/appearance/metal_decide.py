@@ -130,7 +130,7 @@ def decide_metals(model, env, weight: float, frame_loss: Callable, n_frames: int
     gradients turned away from early, Newton's lamé). hues (K, 3) (metal_gate.highlight_hue; NaN rows: none):
     a cluster decided while its metallic is below `low` starts its metal refit with the hue of its highlights,
     not the metal colour the fit left (Adam moves that colour's logits at full rate on a gradient scaled by a
-    metallic of 0.002: on Newton's lamé the gold threads' colour drifted to (1, 1, 0.94)). In place."""
+    metallic of 0.002: on Newton's lamé the gold threads' colour drifted to pink or white). In place."""
     if model.metal is None:
         return []
     values = model.cluster_values()
