@@ -8,7 +8,7 @@ from saft.appearance.config import AppearanceConfig
 from saft.appearance.evidence import cluster_evidence
 from saft.appearance.guided import GuidedMaps
 from saft.appearance.metal import METAL_F0_MIN, MetalColour, metal_blend
-from saft.appearance.metal_gate import highlight_colour
+from saft.appearance.metal_gate import highlight_colour, highlight_hue
 
 
 def _two_colour_texture(size=32):
@@ -100,6 +100,28 @@ def test_highlight_colour_tells_a_metals_highlight_from_a_dielectrics():
     rad, seen, labels = _frames(np.array(gold) * 0.5, np.array(gold) * 0.1)
     rad[:, :, :, :] = np.where(rad.max(-1, keepdims=True) > 0.2, 1.0, rad)   # every highlight clipped white
     assert np.isnan(highlight_colour(rad, seen, labels, k=1)[0])              # not taken for a white one
+
+
+def test_highlight_hue_is_the_colour_of_a_metals_highlight():
+    gold = np.array([0.95, 0.70, 0.30])
+    hue = highlight_hue(*_frames(gold * 0.5, gold * 0.1), k=1)
+    assert hue[0] == pytest.approx(gold / 0.95, abs=0.03)   # the F0's colour over its brightest channel
+    satin = highlight_hue(*_frames([0.3, 0.3, 0.3], [0.5, 0.08, 0.12]), k=1)
+    assert satin[0].min() > 0.6   # a dielectric's highlight: the light's colour (grey), not the cloth's red
+    rad, seen, labels = _frames(gold * 0.5, gold * 0.1)
+    rad[:] = rad[0]   # no highlight comes and goes
+    rad[:, 0] = gold * 0.1
+    assert np.isnan(highlight_hue(rad, seen, labels, k=1)[0]).all()
+
+
+def test_set_hue_gives_a_cluster_this_colour_and_keeps_its_brightness():
+    metal = MetalColour(np.array([[0.2, 0.2, 0.2], [0.05, 0.06, 0.18]]))
+    before = metal.colours().detach().clone()
+    metal.set_hue(0, [0.95, 0.70, 0.30])
+    after = metal.colours().detach()
+    assert after[0].max() == pytest.approx(before[0].max(), abs=1e-6)
+    assert (after[0] / after[0].max()).numpy() == pytest.approx([1.0, 0.70 / 0.95, 0.30 / 0.95], abs=0.01)
+    assert torch.equal(after[1], before[1])
 
 
 def test_metal_options_validate():

@@ -114,6 +114,53 @@ def test_low_zero_decides_a_metal_coloured_cluster_the_fit_left_dielectric():
     assert rows[0]["decision"] == "metal"
 
 
+def test_glossy_decides_a_glossy_dielectric_with_a_metal_colour_and_leaves_a_rough_one():
+    bright = _model()[2].copy()
+    bright[:, :8] = [0.9, 0.7, 0.3]
+    model, gold, tex = _model(0.01)   # the fit left the gold dielectric, glossy (roughness 0.3)
+    assert decide_metals(model, _env(), 1.0, _loss_to(bright), 12, epochs=5, lr=0.05, lr_env=0.05) == []
+    rows = decide_metals(model, _env(), 1.0, _loss_to(bright), 12, epochs=20, lr=0.05, lr_env=0.05, ramp=10,
+                         glossy=0.5)
+    assert [(r["cluster"], r["decision"]) for r in rows] == [(gold, "metal")]
+    assert rows[0]["metallic_fitted"] == pytest.approx(0.01, abs=1e-3)
+    assert model.cluster_values()["metallic"][gold].item() == pytest.approx(1.0, abs=1e-6)
+
+    model, gold, tex = _model(0.01)
+    with torch.no_grad():
+        model.rough_logit[gold] = 2.2   # roughness 0.9: a rough dielectric is not decided
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    assert decide_metals(model, _env(), 1.0, _loss_to(bright), 12, epochs=5, lr=0.05, lr_env=0.05, glossy=0.5) == []
+    assert all(torch.equal(before[k], v) for k, v in model.state_dict().items())
+
+    model, gold, tex = _model(0.01)   # glossy, but its frames show its texture: tested and left as fitted
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    rows = decide_metals(model, _env(), 1.0, _loss_to(tex), 12, epochs=20, lr=0.05, lr_env=0.05, ramp=10,
+                         glossy=0.5, strict=True)
+    assert [r["decision"] for r in rows] == ["as fitted"]
+    assert all(torch.equal(before[k], v) for k, v in model.state_dict().items())
+
+
+def test_a_cluster_below_low_starts_its_metal_refit_with_its_highlights_hue():
+    bright = _model()[2].copy()
+    bright[:, :8] = [0.9, 0.7, 0.3]
+    hues = np.array([[1.0, 0.78, 0.33], [np.nan] * 3])
+
+    def drifted():   # the fit left the gold glossy at metallic 0.01, its metal colour drifted to white
+        model, gold, tex = _model(0.01)
+        model.metal.set_hue(gold, [1.0, 1.0, 0.95])
+        return model, gold, (hues if gold == 0 else hues[::-1])
+
+    model, gold, h = drifted()
+    rows = decide_metals(model, _env(), 1.0, _loss_to(bright), 12, epochs=6, lr=0.05, lr_env=0.05, glossy=0.5, hues=h)
+    assert rows[0]["metal_hue_from_highlights"] == pytest.approx(list(h[gold]))
+    with_hue = rows[0]["held_loss_metal"]
+    c = model.metal.colours()[gold].detach().numpy()
+    assert c[2] / c[0] < 0.5   # gold, not the drifted white
+    model, gold, h = drifted()
+    rows = decide_metals(model, _env(), 1.0, _loss_to(bright), 12, epochs=6, lr=0.05, lr_env=0.05, glossy=0.5)
+    assert "metal_hue_from_highlights" not in rows[0] and with_hue < rows[0]["held_loss_metal"]
+
+
 def test_follow_decides_the_rim_once_its_core_is_metal():
     tex = np.full((18, 18, 3), [0.08, 0.06, 0.02], np.float32)   # the thread's core
     tex[:, 6:12] = [0.25, 0.12, 0.02]                            # its rim, another colour cluster
@@ -145,7 +192,10 @@ def test_metal_decide_validates_and_the_profiles_decide():
 
     AppearanceConfig(metal_colour=True, metal_decide=30).validate()
     AppearanceConfig(metal_colour=True, metal_decide=40, metal_decide_ramp=20).validate()
-    for bad in (dict(metal_decide=-1), dict(metal_decide_ramp=-1)):
+    AppearanceConfig(metal_colour=True, metal_decide=40, metal_decide_glossy=0.5).validate()
+    assert AppearanceConfig().metal_decide_glossy == 0.0 and cpu_profile().metal_decide_glossy == 0.0   # off
+    for bad in (dict(metal_decide=-1), dict(metal_decide_ramp=-1), dict(metal_decide_glossy=-0.1),
+                dict(metal_decide_glossy=1.5)):
         with pytest.raises(Exception):
             AppearanceConfig(**bad).validate()
     p = cpu_profile()

@@ -105,6 +105,16 @@ class AppearanceConfig:
     # dielectric's refit (whose jitter at the refit's rates raises its loss: the print's 4 % cluster became
     # metal at 0.0522 against 0.0523, the fit's own 0.0492, when every metal-coloured cluster was decided)
     metal_decide_strict: bool = False
+    # metal_decide > 0: > 0: the metal-coloured clusters the fit left below metallic 0.05 but glossy (roughness
+    # <= this) are decided from the start too, like the half metals (a glossy highlight of the cluster's own
+    # colour is a metal's or a coloured dielectric's, which the decision's test tells apart; Newton's lamé: its
+    # threads show their highlights in a late gust only, fall to metallic 0.002-0.008 within 15 epochs and
+    # end a glossy dielectric, roughness 0.12-0.35, so no cluster was ever decided; every other metal-coloured
+    # cluster of the five fabrics on both cloths ended rough, >= 0.72). Every cluster decided from below 0.05
+    # starts its metal refit with the colour of its highlights (metal_gate.highlight_hue), not the metal colour
+    # the fit left: at metallic 0.002 Adam drifts it freely (the Newton threads' from the gold they start at,
+    # (0.80, 0.57, 0.24), to (0.74, 0.47, 0.52) on saft's motion, (0.89, 0.89, 0.84) on the true one); 0 = off
+    metal_decide_glossy: float = 0.0
     # maps="guided": mean squared colour of the log-gain grid (each cell's channels minus their mean), a
     # prior that ties the gain's colour to grey so the light's colour goes to the env map (0 = off)
     lambda_gain_chroma: float = 0.0
@@ -186,6 +196,8 @@ class AppearanceConfig:
             bad("metal_rate", "metal_rate must be > 0, lambda_metal_blend >= 0 and metal_gate lie in [0, 1]")
         if self.metal_decide < 0 or self.metal_decide_ramp < 0:
             bad("metal_decide", "metal_decide and metal_decide_ramp must be >= 0 epochs (0 = off)")
+        if not (0 <= self.metal_decide_glossy <= 1):
+            bad("metal_decide_glossy", "must lie in [0, 1] (a roughness; 0 = off)")
         if self.gain_grid < 1 or self.clusters < 1:
             bad("clusters", "gain_grid and clusters must be >= 1")
         if self.env_levels < 1 or (self.env_height >> (self.env_levels - 1)) < 1:

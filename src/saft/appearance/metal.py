@@ -50,6 +50,12 @@ class MetalColour(nn.Module):
         allowed = np.ones(k, bool) if allowed is None else np.asarray(allowed, bool)
         self.register_buffer("allowed", torch.as_tensor(allowed.astype(np.float32)))
 
+    @torch.no_grad()
+    def set_hue(self, k: int, colour) -> None:
+        """Cluster k's hue to this colour's (linear RGB, any brightness; start_hue's scaling), its
+        brightness kept."""
+        self.hue_logit[k] = torch.as_tensor(start_hue(np.asarray(colour, np.float64)[None])[0], dtype=self.hue_logit.dtype)
+
     def colours(self) -> torch.Tensor:
         """(K, 3) linear metal colours, brightest channel in [METAL_F0_MIN, 1]."""
         hue = torch.sigmoid(self.hue_logit)

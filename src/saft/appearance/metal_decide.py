@@ -116,7 +116,8 @@ def held_out_loss(model, env, weight: float, frame_loss: Callable, held: list[in
 
 def decide_metals(model, env, weight: float, frame_loss: Callable, n_frames: int, epochs: int, lr: float,
                   lr_env: float, spp: int = 4, seed: int = 0, low: float = 0.05, high: float = 0.95,
-                  ramp: int = 0, follow: bool = False, strict: bool = False) -> list[dict]:
+                  ramp: int = 0, follow: bool = False, strict: bool = False, glossy: float = 0.0,
+                  hues: np.ndarray | None = None) -> list[dict]:
     """Each cluster with a metal colour whose metallic lies in [low, high] (largest first) refitted metal and
     dielectric (refit_pinned) from the model and env map as they are; both keep the metal's state where its
     held-out loss is the lower, their own otherwise. One dict per cluster decided: its metallic, the held-out
@@ -124,16 +125,26 @@ def decide_metals(model, env, weight: float, frame_loss: Callable, n_frames: int
     ramp: refit_pinned's ramp from the cluster's metallic as it is when its turn comes. follow: once a
     cluster has become metal, the metal-coloured clusters below `low` are decided too (largest first; the rim
     of a thread whose core was found). strict: the metal must also beat the held-out loss of the state it
-    would replace (the fit as it stands). In place."""
+    would replace (the fit as it stands). glossy > 0: the clusters below `low` whose roughness is at most
+    `glossy` are decided from the start too (a glossy dielectric with a metal colour: a metal the fit's
+    gradients turned away from early, Newton's lamé). hues (K, 3) (metal_gate.highlight_hue; NaN rows: none):
+    a cluster decided while its metallic is below `low` starts its metal refit with the hue of its highlights,
+    not the metal colour the fit left (Adam moves that colour's logits at full rate on a gradient scaled by a
+    metallic of 0.002: on Newton's lamé the gold threads' colour drifted to pink or white). In place."""
     if model.metal is None:
         return []
-    values = model.cluster_values()["metallic"].detach()
+    values = model.cluster_values()
+    metallic, rough = values["metallic"].detach(), values["roughness"].detach()
     allowed = model.metal.allowed.bool()
-    todo = [k for k in range(model.num_clusters) if allowed[k] and low <= float(values[k]) <= high]
-    todo.sort(key=lambda k: -float(model.area[k]))
+
+    def first(k: int) -> bool:   # decided from the start: a half metal, or (glossy) a glossy dielectric
+        m = float(metallic[k])
+        return low <= m <= high or (glossy > 0 and m < low and float(rough[k]) <= glossy)
+
+    todo = sorted((k for k in range(model.num_clusters) if allowed[k] and first(k)), key=lambda k: -float(model.area[k]))
     train, held = held_out_frames(n_frames)
     out = []
-    below = sorted((k for k in range(model.num_clusters) if allowed[k] and float(values[k]) < low),
+    below = sorted((k for k in range(model.num_clusters) if allowed[k] and float(metallic[k]) < low and k not in todo),
                    key=lambda k: -float(model.area[k]))
     while todo:
         k = todo.pop(0)
@@ -145,6 +156,9 @@ def decide_metals(model, env, weight: float, frame_loss: Callable, n_frames: int
         for metal, name in ((True, "metal"), (False, "dielectric")):
             model.load_state_dict(start[0])
             env.load_state_dict(start[1])
+            if metal and hues is not None and now < low and np.isfinite(hues[k]).all():
+                model.metal.set_hue(k, hues[k])
+                row["metal_hue_from_highlights"] = [float(x) for x in hues[k]]
             _pin(model, k, metal)
             row[f"held_loss_{name}_unfitted"] = held_out_loss(model, env, weight, frame_loss, held, spp)
             refit_pinned(model, env, weight, frame_loss, train, k, metal, epochs, lr, lr_env, seed=seed + k,

@@ -29,6 +29,25 @@ def chromaticity(rgb: np.ndarray) -> np.ndarray:
     return rgb / np.maximum(rgb.sum(-1, keepdims=True), 1e-9)
 
 
+def _highlights(radiance: np.ndarray, seen: np.ndarray, min_seen: int, min_peak: float):
+    """Per texel: the brightest frame's excess over the per-channel median of its frames (G, G, 3), that
+    median (G, G, 3), and the excess's brightness where it counts as a highlight (seen in at least min_seen
+    frames, at least min_peak times as bright as the median), else 0 (G, G)."""
+    radiance = np.asarray(radiance, dtype=np.float64)
+    seen = seen & (radiance.max(-1) < CLIPPED)   # a clipped highlight is white whatever its colour
+    rad = np.where(seen[..., None], radiance, np.nan)
+    counted = seen.sum(0) >= min_seen
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)   # texels no frame sees
+        med = np.nanmedian(rad, axis=0)                                              # (G, G, 3)
+        lum = np.where(seen, np.nansum(rad, -1), -np.inf)                            # (F, G, G)
+    top = np.take_along_axis(np.nan_to_num(rad), lum.argmax(0)[None, ..., None], 0)[0]
+    med = np.nan_to_num(med)
+    excess = np.maximum(top - med, 0.0)
+    peak = top.sum(-1) / np.maximum(med.sum(-1), 1e-9)
+    return excess, med, excess.sum(-1) * (counted & (peak >= min_peak))
+
+
 def highlight_colour(radiance: np.ndarray, seen: np.ndarray, labels: np.ndarray, k: int, min_seen: int = 3,
                      min_peak: float = 1.5) -> np.ndarray:
     """(K,) per cluster, how much its highlights keep its own colour: 1 a metal's, 0 a dielectric's under grey
@@ -42,23 +61,10 @@ def highlight_colour(radiance: np.ndarray, seen: np.ndarray, labels: np.ndarray,
     dielectric's highlight adds the light's colour, a metal's its F0's. Per texel the shift |chroma(excess) −
     chroma(median)| is compared with the median's own colourfulness |chroma(median) − grey|; the cluster's
     score is 1 − Σ w·shift / Σ w·colourfulness, w the excess's brightness."""
-    radiance = np.asarray(radiance, dtype=np.float64)
-    seen = seen & (radiance.max(-1) < CLIPPED)   # a clipped highlight is white whatever its colour
-    rad = np.where(seen[..., None], radiance, np.nan)
-    counted = seen.sum(0) >= min_seen
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)   # texels no frame sees
-        med = np.nanmedian(rad, axis=0)                                              # (G, G, 3)
-        lum = np.where(seen, np.nansum(rad, -1), -np.inf)                            # (F, G, G)
-    top = np.take_along_axis(np.nan_to_num(rad), lum.argmax(0)[None, ..., None], 0)[0]
-    med = np.nan_to_num(med)
-    excess = np.maximum(top - med, 0.0)
-    peak = top.sum(-1) / np.maximum(med.sum(-1), 1e-9)
-    use = counted & (peak >= min_peak)
+    excess, med, w = _highlights(radiance, seen, min_seen, min_peak)
     grey = np.full(3, 1 / 3)
     shift = np.linalg.norm(chromaticity(excess) - chromaticity(med), axis=-1)
     colourful = np.linalg.norm(chromaticity(med) - grey, axis=-1)
-    w = excess.sum(-1) * use
     score = np.full(k, np.nan)
     for c in range(k):
         wc = w * (labels == c)
@@ -68,13 +74,32 @@ def highlight_colour(radiance: np.ndarray, seen: np.ndarray, labels: np.ndarray,
     return score
 
 
+def highlight_hue(radiance: np.ndarray, seen: np.ndarray, labels: np.ndarray, k: int, min_seen: int = 3,
+                  min_peak: float = 1.5) -> np.ndarray:
+    """(K, 3) per cluster, the colour of its highlights (highlight_colour's excesses): their chromaticity
+    weighted by their brightness, over its brightest channel (a metal's F0 up to its brightness: its highlight
+    is F0 times the light's change, which is grey on the whole); NaN rows where the cluster has none."""
+    excess, _, w = _highlights(radiance, seen, min_seen, min_peak)
+    chroma = chromaticity(excess)
+    hue = np.full((k, 3), np.nan)
+    for c in range(k):
+        wc = w * (labels == c)
+        if wc.sum() > 0:
+            mean = (wc[..., None] * chroma).sum((0, 1)) / wc.sum()
+            hue[c] = mean / max(mean.max(), 1e-9)
+    return hue
+
+
 def metal_scores(model, vertices, triangles, uvs, camera, rgb_srgb, mask, grid: int = GATE_GRID,
-                 frames: int = GATE_FRAMES) -> np.ndarray:
-    """(K,) highlight_colour of a GuidedMaps model's clusters from the video (NaN: nothing tells)."""
+                 frames: int = GATE_FRAMES, hue: bool = False):
+    """(K,) highlight_colour of a GuidedMaps model's clusters from the video (NaN: nothing tells); with hue,
+    (scores, (K, 3) highlight_hue)."""
     n = len(vertices)
     picked = np.linspace(0, n - 1, min(frames, n)).round().astype(int)
     stack = FrameStack(vertices, triangles, uvs, camera, rgb_srgb, mask, grid, (4, 8), picked)
     members = model.members.cpu().numpy()
     idx = ((np.arange(grid) + 0.5) * members.shape[-1] / grid).astype(int)
     labels = members.argmax(0)[np.ix_(idx, idx)]
-    return highlight_colour(stack.radiance.numpy(), stack.seen.numpy(), labels, model.num_clusters)
+    radiance, seen = stack.radiance.numpy(), stack.seen.numpy()
+    scores = highlight_colour(radiance, seen, labels, model.num_clusters)
+    return (scores, highlight_hue(radiance, seen, labels, model.num_clusters)) if hue else scores
