@@ -98,7 +98,7 @@ def test_start_motion_recovers_an_in_plane_motion():
     assert start_motion(tracks, template, camera, dt, basis) is None
 
 
-def _hanging(frames=4):
+def _hanging(frames=4, anchors=False):
     """A free 6 × 6 cloth in the xy plane pushed along -z (a constant acceleration of 9.81 m/s²: its first
     step from rest leaves the plane), a camera 1.4 m away at 45°, and a fresh state."""
     from saft.reconstruct.shape_phase import ShapeSimulator, new_shape_state
@@ -109,7 +109,7 @@ def _hanging(frames=4):
     template = torch.tensor(mesh.vertices)
     sim = ShapeSimulator(template, mesh.quads, PhysicsConfig(), 1 / 30, None)
     state = new_shape_state(frames, len(template), np.array([0.0, 0.0, -9.81]), PhysicsConfig(),
-                            ShapeConfig(lr_v0=0.02), "cpu")
+                            ShapeConfig(lr_v0=0.02), "cpu", anchors=anchors)
     K = np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]])
     camera = look_at((1.0, 0.0, 1.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), K, 320, 240)
     return sim, state, camera
@@ -159,6 +159,21 @@ def test_a_clip_that_starts_moving_is_seeded_with_the_motion_beyond_the_physics_
     # the image sees the step after the solver's damping, and x partly along the rays (the ridge keeps that
     # part small): the seed points the true way, within 25 % in y
     assert float(seed[0, 0]) > 0.05 and -0.25 < float(seed[0, 1]) < -0.15 and float(seed[1:].abs().max()) < 0.05
+
+
+def test_soft_anchors_drop_v0_even_where_the_clip_starts_moving():
+    from saft.reconstruct.initial_velocity import start_velocity
+
+    sim, free, camera = _hanging()
+    truth = torch.zeros(4, 3, dtype=torch.float64)
+    truth[0, :2] = torch.tensor([0.3, -0.2])
+    with torch.no_grad():
+        free.params.v0_field.copy_(truth)
+        moving = sim.simulate(free.params, 4)            # tracks of a cloth that starts moving
+    _, state, _ = _hanging(anchors=True)
+    motion = start_velocity(state.params, state.optimizer, sim, _tracks_of(moving, camera), camera)
+    assert motion.moving                                 # the gate alone would learn it
+    assert state.params.v0_field is None and "v0_field" not in state.optimizer.specs
 
 
 def test_the_gate_needs_a_share_of_the_clips_motion_and_a_margin_over_the_noise():

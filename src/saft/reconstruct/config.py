@@ -280,7 +280,8 @@ class ShapeConfig:
     # |v0|, m/s). 0.02, against 0: clips that start mid-motion (independent scenes from frame 8) corners 1.63
     # -> 1.39, gust 20.4 -> 5.76, fold 3.01 -> 2.20; at rest gust 1.16 -> 1.11, fold 1.10 -> 1.14 (its run-to-run
     # noise), corners, the demo, R1 and the saft-simulated twins: dropped, unchanged. Ungated it made the demo
-    # 0.347 -> 0.483 (BENCHMARKS.md, "Learn v0 only where the clip starts moving").
+    # 0.347 -> 0.483 (BENCHMARKS.md, "Learn v0 only where the clip starts moving"). Never with soft anchors
+    # (they hold the template at rest): Newton's unpinned gust 17.5 with v0 learned, 1.28 without.
     lr_v0: float = 0.02
     lambda_v0: float = 1e-3
     normalize_loss: bool = True           # divide the loss by its detached value before backward

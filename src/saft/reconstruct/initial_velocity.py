@@ -113,23 +113,28 @@ def start_motion(tracks: VertexTracks, template: torch.Tensor, camera: Camera, f
 
 def start_velocity(params, optimizer: ClippedAdam, sim, tracks: VertexTracks | None, camera: Camera) -> StartMotion | None:
     """Before the shape phase's first epoch (v0 and the accelerations still 0): v0 := start_motion's field
-    when the clip starts in motion; otherwise (or without tracks) v0 is dropped, params.v0_field = None and
-    out of the optimizer, and the phase runs as with shape.lr_v0 = 0. `params`: ShapeParams, `sim`:
-    ShapeSimulator (saft.reconstruct.shape_phase, which imports this module)."""
+    when the clip starts in motion and no soft anchors hold it; otherwise (or without tracks) v0 is dropped,
+    params.v0_field = None and out of the optimizer, and the phase runs as with shape.lr_v0 = 0. The anchors
+    hold the cloth where it hangs at rest, the template, which a start in motion contradicts (Newton's
+    unpinned gust, whose first step the gate reads as motion: CD2 1.28 with v0 dropped, 17.5 learned).
+    `params`: ShapeParams, `sim`: ShapeSimulator (saft.reconstruct.shape_phase, which imports this module)."""
     motion = None
     if tracks is not None and tracks.points.shape[0] >= 2:
         with torch.no_grad():
             from_rest = sim.simulate(params, 2)[1]
         motion = start_motion(tracks, sim.template, camera, sim.frame_dt, sim.field_basis, from_rest)
-    if motion is not None and motion.moving:
+    anchored = params.anchor_log10 is not None
+    if motion is not None and motion.moving and not anchored:
         with torch.no_grad():
             params.v0_field.copy_(motion.field)
     else:
         params.v0_field = None
         optimizer.drop("v0_field")
     if motion is not None:
+        verdict = ("learned" if motion.moving and not anchored else
+                   "0 (soft anchors: the cloth hangs at rest)" if anchored else "0 (the clip starts at rest)")
         log.info("v0 %s: the first step's affine motion %.3f px (%.2f of the median step %.3f px, %.1f x the "
-                 "rest %.3f px)", "learned" if motion.moving else "0 (the clip starts at rest)", motion.fitted_px,
+                 "rest %.3f px)", verdict, motion.fitted_px,
                  motion.fitted_px / max(motion.median_px, 1e-12), motion.median_px,
                  motion.fitted_px / max(motion.rest_px, 1e-12), motion.rest_px)
     return motion
