@@ -193,13 +193,13 @@ def test_metal_decide_validates_and_the_profiles_decide():
     AppearanceConfig(metal_colour=True, metal_decide=30).validate()
     AppearanceConfig(metal_colour=True, metal_decide=40, metal_decide_ramp=20).validate()
     AppearanceConfig(metal_colour=True, metal_decide=40, metal_decide_glossy=0.5).validate()
-    assert AppearanceConfig().metal_decide_glossy == 0.0 and cpu_profile().metal_decide_glossy == 0.0   # off
+    assert AppearanceConfig().metal_decide_glossy == 0.0 and cpu_profile().metal_decide_glossy == 0.5
     for bad in (dict(metal_decide=-1), dict(metal_decide_ramp=-1), dict(metal_decide_glossy=-0.1),
                 dict(metal_decide_glossy=1.5)):
         with pytest.raises(Exception):
             AppearanceConfig(**bad).validate()
     p = cpu_profile()
-    assert (p.metal_decide, p.metal_decide_ramp, p.metal_decide_follow, p.metal_decide_strict) == (40, 20, True, True)
+    assert (p.metal_decide, p.metal_decide_ramp, p.metal_decide_follow, p.metal_decide_strict) == (40, 20, True, False)
 
 
 def test_the_fit_decides_its_half_metal_clusters_and_records_it():
