@@ -124,15 +124,16 @@ def start_velocity(params, optimizer: ClippedAdam, sim, tracks: VertexTracks | N
             from_rest = sim.simulate(params, 2)[1]
         motion = start_motion(tracks, sim.template, camera, sim.frame_dt, sim.field_basis, from_rest)
     anchored = params.anchor_log10 is not None
-    if motion is not None and motion.moving and not anchored:
+    learned = motion is not None and motion.moving and not anchored
+    if learned:
         with torch.no_grad():
             params.v0_field.copy_(motion.field)
     else:
         params.v0_field = None
         optimizer.drop("v0_field")
     if motion is not None:
-        verdict = ("learned" if motion.moving and not anchored else
-                   "0 (soft anchors: the cloth hangs at rest)" if anchored else "0 (the clip starts at rest)")
+        verdict = ("learned" if learned else "0 (soft anchors: the cloth hangs at rest)" if anchored
+                   else "0 (the clip starts at rest)")
         log.info("v0 %s: the first step's affine motion %.3f px (%.2f of the median step %.3f px, %.1f x the "
                  "rest %.3f px)", verdict, motion.fitted_px,
                  motion.fitted_px / max(motion.median_px, 1e-12), motion.median_px,
