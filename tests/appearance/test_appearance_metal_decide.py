@@ -71,27 +71,6 @@ def test_the_ramp_moves_the_metallic_on_a_line_to_the_pin():
     assert ramp_metallic(0.2, True, 0, 1) is None   # a ramp of one epoch: pinned at once
 
 
-def test_strict_keeps_the_fit_where_the_metal_beats_only_the_dielectric():
-    model, gold, tex = _model()
-    before = {k: v.clone() for k, v in model.state_dict().items()}
-    loss = _loss_to(tex)
-    # the held-out scores in decide_metals' order (8 frames each): the fit 0.1, the metal pinned 0.9 and
-    # refitted 0.3, the dielectric pinned 0.9 and refitted 0.5: the metal beats the dielectric, not the fit
-    scores, calls = [0.1, 0.9, 0.3, 0.9, 0.5], {"n": 0}
-
-    def frame_loss(f, maps, env, spp, seed):
-        if torch.is_grad_enabled():   # the refits' gradients
-            return loss(f, maps, env, spp, seed)
-        calls["n"] += 1
-        return torch.tensor(scores[(calls["n"] - 1) // 8])
-    rows = decide_metals(model, _env(), 1.0, frame_loss, 12, epochs=3, lr=0.05, lr_env=0.05, strict=True)
-    assert rows[0]["held_loss_metal"] < rows[0]["held_loss_dielectric"] and rows[0]["decision"] == "as fitted"
-    assert all(torch.equal(before[k], v) for k, v in model.state_dict().items())
-    calls["n"] = 0
-    rows = decide_metals(model, _env(), 1.0, frame_loss, 12, epochs=3, lr=0.05, lr_env=0.05)   # not strict
-    assert rows[0]["decision"] == "metal"
-
-
 def test_a_ramped_refit_ends_pinned_and_finds_the_bright_gold():
     model, gold, tex = _model()
     bright = tex.copy()
@@ -135,7 +114,7 @@ def test_glossy_decides_a_glossy_dielectric_with_a_metal_colour_and_leaves_a_rou
     model, gold, tex = _model(0.01)   # glossy, but its frames show its texture: tested and left as fitted
     before = {k: v.clone() for k, v in model.state_dict().items()}
     rows = decide_metals(model, _env(), 1.0, _loss_to(tex), 12, epochs=20, lr=0.05, lr_env=0.05, ramp=10,
-                         glossy=0.5, strict=True)
+                         glossy=0.5)
     assert [r["decision"] for r in rows] == ["as fitted"]
     assert all(torch.equal(before[k], v) for k, v in model.state_dict().items())
 
@@ -199,7 +178,7 @@ def test_metal_decide_validates_and_the_profiles_decide():
         with pytest.raises(Exception):
             AppearanceConfig(**bad).validate()
     p = cpu_profile()
-    assert (p.metal_decide, p.metal_decide_ramp, p.metal_decide_follow, p.metal_decide_strict) == (40, 20, True, False)
+    assert (p.metal_decide, p.metal_decide_ramp, p.metal_decide_follow) == (40, 20, True)
 
 
 def test_the_fit_decides_its_half_metal_clusters_and_records_it():

@@ -90,7 +90,7 @@ class AppearanceConfig:
     # to the pin over this many of its epochs, the light and the maps following (appearance.metal_decide:
     # pinned at once, a metal starts at 15-30x the fit's held-out loss under the light fitted for a half
     # metal and 30 epochs do not bring it back: the lamé's threads at seed 1); 0 = pinned at once. 20 in the
-    # profiles, with metal_decide = 40, follow and strict: the lamé's threads found at seed 1 too (metallic
+    # profiles, with metal_decide = 40 and follow: the lamé's threads found at seed 1 too (metallic
     # 0.167 -> 0.016, relit +2.8 / +2.7 dB), at seed 0 relit -0.35 / -0.43 dB; 30 / 15 lost seed 1 (BENCHMARKS.md,
     # "The lamé's threads at seed 1…"). Lost and removed: the refits' rates decaying after the pin (diffuse
     # -0.20 / -0.38 dB)
@@ -101,12 +101,9 @@ class AppearanceConfig:
     # refitted. Deciding every metal-coloured cluster from the start lost: the print's 4 % cluster made metal,
     # relit −6.5 dB (BENCHMARKS.md, "The lamé's threads at seed 1…")
     metal_decide_follow: bool = False
-    # metal_decide > 0: the metal must also beat the held-out loss of the fit as it stands, not only the
-    # dielectric's refit (whose jitter at the refit's rates raises its loss: the print's 4 % cluster became
-    # metal at 0.0522 against 0.0523, the fit's own 0.0492, when every metal-coloured cluster was decided).
-    # Off in the profiles since metal_decide_glossy: it threw away the lamé's threads that beat the dielectric
-    # (saft's cloth at seed 1, Newton's at both seeds), and with the gate and low 0.05 no print cluster reaches it
-    metal_decide_strict: bool = False
+    # Lost and removed: the metal also judged against the fit as it stands, not only the dielectric's refit
+    # (metal_decide_strict): it threw away the lamé's threads that beat the dielectric (saft's cloth at seed 1,
+    # Newton's at both seeds; BENCHMARKS.md "Newton's lamé: where the gold threads are lost…")
     # metal_decide > 0 and this > 0: the metal-coloured clusters the fit left below metallic 0.05 but glossy
     # (roughness <= this) are decided from the start too, like the half metals (a glossy highlight of the cluster's own
     # colour is a metal's or a coloured dielectric's, which the decision's test tells apart; Newton's lamé: its
@@ -256,7 +253,7 @@ def paper_profile() -> AppearanceConfig:
 # seeds 0 / 1) and a bright metal colour for the clusters whose highlights keep their colour (metal_colour,
 # metal_gate: the lamé +3.2 / +1.9 dB diffuse, relit +1.3 to +2.6 dB; BENCHMARKS "Twelfth session's defaults");
 # the metal-coloured clusters the fit left a glossy dielectric decided too, the metal judged against the
-# dielectric's refit only (metal_decide_glossy 0.5, metal_decide_strict off: Newton's lamé roughness MAE 0.220 ->
+# dielectric's refit only (metal_decide_glossy 0.5, no longer also against the fit as it stands: Newton's lamé roughness MAE 0.220 ->
 # 0.068 / 0.190 -> 0.056, metallic 0.178 -> 0.027 / 0.041, relit +1.6 to +2.4 dB; saft's lamé at seed 1 0.158 ->
 # 0.046, relit +2.8 / +3.3 dB; the other fabrics equal; BENCHMARKS "Newton's lamé: where the gold threads…").
 GUIDED = dict(maps="guided", texel_size=512, gain_grid=8, clusters=6, texture_smoothing=4.0, lambda_metallic_l1=0.01,

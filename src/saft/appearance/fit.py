@@ -194,10 +194,10 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
                                            cfg.detail_trust)
     scores, hues = None, None   # the gate's scores and the highlights' hues per cluster (appearance.metal_gate)
     if isinstance(model, GuidedMaps) and cfg.metal_colour:   # a metal colour per cluster (appearance.metal)
-        if cfg.metal_gate > 0 and cfg.metal_decide > 0 and cfg.metal_decide_glossy > 0:   # with the highlights' hues
-            scores, hues = metal_scores(model, verts, triangles, uvs, camera, rgb, mask, hue=True)
-        elif cfg.metal_gate > 0:
-            scores = metal_scores(model, verts, triangles, uvs, camera, rgb, mask)
+        if cfg.metal_gate > 0:
+            scores, hues = metal_scores(model, verts, triangles, uvs, camera, rgb, mask)
+            if not (cfg.metal_decide > 0 and cfg.metal_decide_glossy > 0):   # the hues start only a glossy refit
+                hues = None
         model.use_metal_colour(cfg.metal_rate, None if scores is None else scores >= cfg.metal_gate)   # NaN: no
     untrusted = set(left_out or ())
     stack = None   # the frames in texture space that measure frame 0's specular (appearance.frame_specular)
@@ -351,7 +351,7 @@ def fit_appearance(vertices_per_frame, triangles, uvs, camera: Camera, target_rg
                                   n_frames, cfg.metal_decide,
                                   cfg.lr_texels * cfg.lr_final_factor ** 0.5, cfg.lr_env * cfg.lr_final_factor ** 0.5,
                                   cfg.evidence_spp, cfg.seed, ramp=cfg.metal_decide_ramp,
-                                  follow=cfg.metal_decide_follow, strict=cfg.metal_decide_strict,
+                                  follow=cfg.metal_decide_follow,
                                   glossy=cfg.metal_decide_glossy, hues=hues)
     env_now = env(final_weight).detach()   # after the decisions, which refit the env map
     if isinstance(model, GuidedMaps) and cfg.evidence_threshold > 0:

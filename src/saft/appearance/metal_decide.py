@@ -116,7 +116,7 @@ def held_out_loss(model, env, weight: float, frame_loss: Callable, held: list[in
 
 def decide_metals(model, env, weight: float, frame_loss: Callable, n_frames: int, epochs: int, lr: float,
                   lr_env: float, spp: int = 4, seed: int = 0, low: float = 0.05, high: float = 0.95,
-                  ramp: int = 0, follow: bool = False, strict: bool = False, glossy: float = 0.0,
+                  ramp: int = 0, follow: bool = False, glossy: float = 0.0,
                   hues: np.ndarray | None = None) -> list[dict]:
     """Each cluster with a metal colour whose metallic lies in [low, high] (largest first) refitted metal and
     dielectric (refit_pinned) from the model and env map as they are; both keep the metal's state where its
@@ -124,8 +124,7 @@ def decide_metals(model, env, weight: float, frame_loss: Callable, n_frames: int
     losses (fitted, each alternative pinned before and after its refit), the refits' roughness, the decision.
     ramp: refit_pinned's ramp from the cluster's metallic as it is when its turn comes. follow: once a
     cluster has become metal, the metal-coloured clusters below `low` are decided too (largest first; the rim
-    of a thread whose core was found). strict: the metal must also beat the held-out loss of the state it
-    would replace (the fit as it stands). glossy > 0: the clusters below `low` whose roughness is at most
+    of a thread whose core was found). glossy > 0: the clusters below `low` whose roughness is at most
     `glossy` are decided from the start too (a glossy dielectric with a metal colour: a metal the fit's
     gradients turned away from early, Newton's lamé). hues (K, 3) (metal_gate.highlight_hue; NaN rows: none):
     a cluster decided while its metallic is below `low` starts its metal refit with the hue of its highlights,
@@ -166,7 +165,7 @@ def decide_metals(model, env, weight: float, frame_loss: Callable, n_frames: int
             losses[metal] = row[f"held_loss_{name}"] = held_out_loss(model, env, weight, frame_loss, held, spp)
             row[f"roughness_{name}"] = float(model.cluster_values()["roughness"][k].detach())
             states[metal] = copy.deepcopy((model.state_dict(), env.state_dict()))
-        wins = losses[True] < losses[False] and (not strict or losses[True] < row["held_loss_fitted"])
+        wins = losses[True] < losses[False]
         keep = states[True] if wins else start   # metal, or as the fit left it
         model.load_state_dict(keep[0])
         env.load_state_dict(keep[1])

@@ -21,6 +21,8 @@ from saft.appearance.frame_specular import FrameStack
 GATE_GRID = 128
 GATE_FRAMES = 32        # frames sampled (evenly spaced, frame 0 among them)
 CLIPPED = 0.95          # linear radiance of a channel at which a sample counts as clipped (sRGB 0.98)
+MIN_SEEN = 3            # frames a texel must be seen in to count
+MIN_PEAK = 1.5          # how many times its median the brightest frame must be to be a highlight
 
 
 def chromaticity(rgb: np.ndarray) -> np.ndarray:
@@ -48,8 +50,8 @@ def _highlights(radiance: np.ndarray, seen: np.ndarray, min_seen: int, min_peak:
     return excess, med, excess.sum(-1) * (counted & (peak >= min_peak))
 
 
-def highlight_colour(radiance: np.ndarray, seen: np.ndarray, labels: np.ndarray, k: int, min_seen: int = 3,
-                     min_peak: float = 1.5) -> np.ndarray:
+def highlight_colour(radiance: np.ndarray, seen: np.ndarray, labels: np.ndarray, k: int, min_seen: int = MIN_SEEN,
+                     min_peak: float = MIN_PEAK) -> np.ndarray:
     """(K,) per cluster, how much its highlights keep its own colour: 1 a metal's, 0 a dielectric's under grey
     light, NaN where nothing tells (no highlight, or a grey cluster).
 
@@ -61,7 +63,10 @@ def highlight_colour(radiance: np.ndarray, seen: np.ndarray, labels: np.ndarray,
     dielectric's highlight adds the light's colour, a metal's its F0's. Per texel the shift |chroma(excess) −
     chroma(median)| is compared with the median's own colourfulness |chroma(median) − grey|; the cluster's
     score is 1 − Σ w·shift / Σ w·colourfulness, w the excess's brightness."""
-    excess, med, w = _highlights(radiance, seen, min_seen, min_peak)
+    return _colour_scores(*_highlights(radiance, seen, min_seen, min_peak), labels, k)
+
+
+def _colour_scores(excess: np.ndarray, med: np.ndarray, w: np.ndarray, labels: np.ndarray, k: int) -> np.ndarray:
     grey = np.full(3, 1 / 3)
     shift = np.linalg.norm(chromaticity(excess) - chromaticity(med), axis=-1)
     colourful = np.linalg.norm(chromaticity(med) - grey, axis=-1)
@@ -74,12 +79,16 @@ def highlight_colour(radiance: np.ndarray, seen: np.ndarray, labels: np.ndarray,
     return score
 
 
-def highlight_hue(radiance: np.ndarray, seen: np.ndarray, labels: np.ndarray, k: int, min_seen: int = 3,
-                  min_peak: float = 1.5) -> np.ndarray:
+def highlight_hue(radiance: np.ndarray, seen: np.ndarray, labels: np.ndarray, k: int, min_seen: int = MIN_SEEN,
+                  min_peak: float = MIN_PEAK) -> np.ndarray:
     """(K, 3) per cluster, the colour of its highlights (highlight_colour's excesses): their chromaticity
     weighted by their brightness, over its brightest channel (a metal's F0 up to its brightness: its highlight
     is F0 times the light's change, which is grey on the whole); NaN rows where the cluster has none."""
     excess, _, w = _highlights(radiance, seen, min_seen, min_peak)
+    return _hues(excess, w, labels, k)
+
+
+def _hues(excess: np.ndarray, w: np.ndarray, labels: np.ndarray, k: int) -> np.ndarray:
     chroma = chromaticity(excess)
     hue = np.full((k, 3), np.nan)
     for c in range(k):
@@ -91,9 +100,9 @@ def highlight_hue(radiance: np.ndarray, seen: np.ndarray, labels: np.ndarray, k:
 
 
 def metal_scores(model, vertices, triangles, uvs, camera, rgb_srgb, mask, grid: int = GATE_GRID,
-                 frames: int = GATE_FRAMES, hue: bool = False):
-    """(K,) highlight_colour of a GuidedMaps model's clusters from the video (NaN: nothing tells); with hue,
-    (scores, (K, 3) highlight_hue)."""
+                 frames: int = GATE_FRAMES):
+    """A GuidedMaps model's clusters from the video: ((K,) highlight_colour, NaN where nothing tells;
+    (K, 3) highlight_hue, NaN rows where a cluster has no highlight), from one pass over the highlights."""
     n = len(vertices)
     picked = np.linspace(0, n - 1, min(frames, n)).round().astype(int)
     stack = FrameStack(vertices, triangles, uvs, camera, rgb_srgb, mask, grid, (4, 8), picked)
@@ -101,5 +110,5 @@ def metal_scores(model, vertices, triangles, uvs, camera, rgb_srgb, mask, grid: 
     idx = ((np.arange(grid) + 0.5) * members.shape[-1] / grid).astype(int)
     labels = members.argmax(0)[np.ix_(idx, idx)]
     radiance, seen = stack.radiance.numpy(), stack.seen.numpy()
-    scores = highlight_colour(radiance, seen, labels, model.num_clusters)
-    return (scores, highlight_hue(radiance, seen, labels, model.num_clusters)) if hue else scores
+    excess, med, w = _highlights(radiance, seen, MIN_SEEN, MIN_PEAK)
+    return _colour_scores(excess, med, w, labels, model.num_clusters), _hues(excess, w, labels, model.num_clusters)
