@@ -6,7 +6,7 @@ import torch
 
 from saft.reconstruct.config import ShapeConfig
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
-from saft.reconstruct.shape_phase import lr_factor
+from saft.reconstruct.frame_schedule import lr_factor
 from saft.reconstruct.tracks import (VertexTracks, appearance_steps, bilinear_sample, end_at_appearance_jumps,
                                      drift_confidence, end_at_colour_drift, project,
                                      track_loss, track_points)

@@ -30,7 +30,7 @@ from torch.profiler import record_function
 from saft.physics import ClothTopology, PhysicsParams, deformation_energy, rollout
 from saft.physics.factor_cache import FactorCache
 from saft.reconstruct.config import PhysicsConfig, ShapeConfig
-from saft.reconstruct.frame_schedule import FrameSchedule, window_first_frame
+from saft.reconstruct.frame_schedule import FrameSchedule, lr_factor, window_first_frame
 from saft.reconstruct.context import PhaseContext
 from saft.reconstruct.force_field import affine_basis, total_accelerations
 from saft.reconstruct.initial_velocity import initial_velocity, start_velocity, velocity_prior
@@ -410,14 +410,6 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
                 t.grad.div_(total)
     return {"loss": total, "energy": float(energy.detach()), "force": float(force.detach()),
             "track": float(track.detach()), "held": float(held.detach()), "v0": float(v0.detach()), **sums}
-
-
-def lr_factor(epoch: int, first_final: float, cfg: ShapeConfig) -> float:
-    """Learning-rate factor: 1 until the final all-frame epochs, then a cosine down to final_lr_fraction."""
-    if cfg.final_lr_fraction >= 1.0 or epoch < first_final or cfg.final_epochs <= 1:
-        return 1.0
-    progress = (epoch - first_final) / (cfg.final_epochs - 1)
-    return cfg.final_lr_fraction + (1.0 - cfg.final_lr_fraction) * 0.5 * (1.0 + np.cos(np.pi * progress))
 
 
 def shape_tracks(ctx: PhaseContext, cfg: ShapeConfig, texture: torch.Tensor, template: torch.Tensor) -> VertexTracks | None:
