@@ -101,18 +101,18 @@ class AppearanceConfig:
     # refitted. Deciding every metal-coloured cluster from the start lost: the print's 4 % cluster made metal,
     # relit −6.5 dB (BENCHMARKS.md, "The lamé's threads at seed 1…")
     metal_decide_follow: bool = False
+    # metal_decide > 0 and this > 0: the metal-coloured clusters the fit left below metallic 0.05 but glossy
+    # (roughness <= this) are decided from the start too, like the half metals (a glossy highlight of the cluster's
+    # own colour is a metal's or a coloured dielectric's, which the decision's test tells apart; Newton's lamé: its
+    # threads show their highlights in a late gust only, fall to metallic 0.002-0.008 within 15 epochs and end a
+    # glossy dielectric, roughness 0.12-0.35, so no cluster was ever decided; every other metal-coloured cluster of
+    # the five fabrics on both cloths ended rough, >= 0.72). Every cluster decided from below 0.05 starts its metal
+    # refit with the colour of its highlights (metal_gate.highlight_hue), not the metal colour the fit left: at
+    # metallic 0.002 Adam drifts it freely (the Newton threads' from the gold they start at, (0.80, 0.57, 0.24), to
+    # (0.74, 0.47, 0.52) on saft's motion, (0.89, 0.89, 0.84) on the true one); 0 = off.
     # Lost and removed: the metal also judged against the fit as it stands, not only the dielectric's refit
     # (metal_decide_strict): it threw away the lamé's threads that beat the dielectric (saft's cloth at seed 1,
     # Newton's at both seeds; BENCHMARKS.md "Newton's lamé: where the gold threads are lost…")
-    # metal_decide > 0 and this > 0: the metal-coloured clusters the fit left below metallic 0.05 but glossy
-    # (roughness <= this) are decided from the start too, like the half metals (a glossy highlight of the cluster's own
-    # colour is a metal's or a coloured dielectric's, which the decision's test tells apart; Newton's lamé: its
-    # threads show their highlights in a late gust only, fall to metallic 0.002-0.008 within 15 epochs and
-    # end a glossy dielectric, roughness 0.12-0.35, so no cluster was ever decided; every other metal-coloured
-    # cluster of the five fabrics on both cloths ended rough, >= 0.72). Every cluster decided from below 0.05
-    # starts its metal refit with the colour of its highlights (metal_gate.highlight_hue), not the metal colour
-    # the fit left: at metallic 0.002 Adam drifts it freely (the Newton threads' from the gold they start at,
-    # (0.80, 0.57, 0.24), to (0.74, 0.47, 0.52) on saft's motion, (0.89, 0.89, 0.84) on the true one); 0 = off
     metal_decide_glossy: float = 0.0
     # maps="guided": mean squared colour of the log-gain grid (each cell's channels minus their mean), a
     # prior that ties the gain's colour to grey so the light's colour goes to the env map (0 = off)
@@ -253,9 +253,10 @@ def paper_profile() -> AppearanceConfig:
 # seeds 0 / 1) and a bright metal colour for the clusters whose highlights keep their colour (metal_colour,
 # metal_gate: the lamé +3.2 / +1.9 dB diffuse, relit +1.3 to +2.6 dB; BENCHMARKS "Twelfth session's defaults");
 # the metal-coloured clusters the fit left a glossy dielectric decided too, the metal judged against the
-# dielectric's refit only (metal_decide_glossy 0.5, no longer also against the fit as it stands: Newton's lamé roughness MAE 0.220 ->
-# 0.068 / 0.190 -> 0.056, metallic 0.178 -> 0.027 / 0.041, relit +1.6 to +2.4 dB; saft's lamé at seed 1 0.158 ->
-# 0.046, relit +2.8 / +3.3 dB; the other fabrics equal; BENCHMARKS "Newton's lamé: where the gold threads…").
+# dielectric's refit only (metal_decide_glossy 0.5, no longer also against the fit as it stands: Newton's lamé
+# roughness MAE 0.220 -> 0.068 / 0.190 -> 0.056, metallic 0.178 -> 0.027 / 0.041, relit +1.6 to +2.4 dB; saft's
+# lamé at seed 1 0.158 -> 0.046, relit +2.8 / +3.3 dB; the other fabrics equal; BENCHMARKS "Newton's lamé: where
+# the gold threads…").
 GUIDED = dict(maps="guided", texel_size=512, gain_grid=8, clusters=6, texture_smoothing=4.0, lambda_metallic_l1=0.01,
               normal_grid=4, normal_keys=16, lr_normals=0.03, lambda_normals=0.03, metal_colour=True, metal_gate=0.5,
               metal_decide=40, metal_decide_ramp=20, metal_decide_follow=True, metal_decide_glossy=0.5,

@@ -122,12 +122,12 @@ def simulated_frames_per_epoch(num_frames: int, cfg: ShapeConfig) -> list[int]:
             for epoch, f in enumerate(shape_schedule(num_frames, cfg))]
 
 
-__all__ = ["FrameSchedule", "window_first_frame", "simulated_frames_per_epoch", "lr_factor"]
-
-
 def lr_factor(epoch: int, first_final: float, cfg: ShapeConfig) -> float:
     """Learning-rate factor: 1 until the final all-frame epochs, then a cosine down to final_lr_fraction."""
     if cfg.final_lr_fraction >= 1.0 or epoch < first_final or cfg.final_epochs <= 1:
         return 1.0
     progress = (epoch - first_final) / (cfg.final_epochs - 1)
     return cfg.final_lr_fraction + (1.0 - cfg.final_lr_fraction) * 0.5 * (1.0 + np.cos(np.pi * progress))
+
+
+__all__ = ["FrameSchedule", "window_first_frame", "simulated_frames_per_epoch", "lr_factor"]
