@@ -375,7 +375,7 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
         with record_function("saft.shape.render"):
             out = ctx.render(pos_leaf[lo:hi], texture, light)
             if tracks is not None and cfg.track_occlusion:
-                depths.append(out.depth.detach().to(positions.device))
+                depths.extend(out.depth.detach().to(positions.device))   # one (H, W) per frame of the chunk
             rgb, mask = out.rgb, out.mask
             if cfg.hard_coverage:
                 covered = (out.rast[..., 3] > 0).to(rgb.dtype)
