@@ -33,6 +33,14 @@ def test_flat_sheet_has_no_contact():
     assert min_gap(rest, rest, 6 * H) == 0.05         # none within the 5 cm reach
 
 
+def test_tilted_flat_sheet_in_float32_does_not_cross():
+    rest, tri = _sheet()
+    p = rest.copy()  # the corners scene's rest shape: rotated 55 degrees about the top edge (float32 as gt_vertices.npy)
+    drop = rest[:, 1].max() - rest[:, 1]
+    p[:, 1], p[:, 2] = rest[:, 1].max() - drop * np.cos(np.radians(55)), drop * np.sin(np.radians(55))
+    assert crossing_triangles(p.astype(np.float32), tri) == 0
+
+
 def test_clean_fold_touches_but_does_not_cross():
     rest, tri = _sheet()
     p = _fold(rest, 0.006)

@@ -37,7 +37,10 @@ def min_gap(rest: np.ndarray, pos: np.ndarray, rest_min: float, reach: float = 0
 
 
 def crossing_triangles(pos: np.ndarray, tri: np.ndarray) -> int:
-    """Number of triangle pairs sharing no vertex in which an edge of one crosses the other."""
+    """Number of triangle pairs sharing no vertex in which an edge of one crosses the other (in float64: on float32
+    positions the edge-plane determinants of a flat, tilted sheet are rounding noise above the 1e-14 cut, and
+    hundreds of coplanar neighbours "cross")."""
+    pos = np.asarray(pos, dtype=np.float64)
     edges = np.unique(np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1), axis=0)
     e0, e1 = pos[edges[:, 0]], pos[edges[:, 1]]
     a, b, c = pos[tri[:, 0]], pos[tri[:, 1]], pos[tri[:, 2]]
