@@ -3,12 +3,19 @@ grids, the model-matched twin, and (where the optional `bench` extra is installe
 
 from __future__ import annotations
 
+import json
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
+import saft.synthetic.independent_scenes as independent_scenes
 from saft.scene import load_scene
+from saft.synthetic.appearance import AppearanceSceneSpec, newton_motion
+from saft.synthetic.benchmark_scenes import DONE_FILE
 from saft.synthetic.hanging_cloth import grid_template
-from saft.synthetic.independent_scenes import (IndependentSceneSpec, grid_indices, resample_grid, meshes, scenario,
+from saft.synthetic.independent_scenes import (SCENARIOS, IndependentSceneSpec, grid_indices, is_complete,
+                                               resample_grid, meshes, scenario, simulate_independent,
                                                scene_names, simulate_matched, split_name, write_scenario)
 from saft.synthetic.newton_cloth import AIR_DENSITY, NewtonClothParams, aero_forces
 
@@ -69,6 +76,44 @@ def test_the_matched_twin_holds_its_pins_and_follows_the_felt_wind():
     assert x[-1, 20:, 2].mean() > 1e-4  # the breeze from behind pushes the hem towards the camera (+z)
 
 
+def _newton_params(monkeypatch, call) -> list:
+    """The NewtonClothParams that `call()` hands to Newton (Newton itself replaced by a cloth that does not move)."""
+    seen = []
+
+    def fake(vertices, triangles, num_frames, frame_dt, params, **kw):
+        seen.append(params)
+        return np.repeat(np.asarray(vertices)[None], num_frames, axis=0)
+    monkeypatch.setattr(independent_scenes, "simulate_newton_cloth", fake)
+    call()
+    return seen
+
+
+def test_every_scenario_is_simulated_with_newtons_self_contact(monkeypatch):
+    # without it the one corner's, the flag's, both gusts' and the corners' truths pass through themselves
+    # (diagnose_self_contact.py: 5 to 23 of 32 frames); only the fold had it
+    spec = IndependentSceneSpec(gt_grid=7, grid=5, frames=2)
+    for name in SCENARIOS:
+        sc = scenario(name, spec)
+        (params,) = _newton_params(monkeypatch, lambda: simulate_independent(sc, meshes(sc, spec)[0], spec))
+        assert params.self_contact and params.contact_margin > 0, name
+
+
+def test_a_scene_made_without_self_contact_is_regenerated(tmp_path):
+    spec = IndependentSceneSpec()
+    old = replace(spec, newton=replace(spec.newton, self_contact=False))  # the benchmark's scenes before the change
+    for name, made in (("old", old), ("new", spec)):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / DONE_FILE).write_text(json.dumps({"spec": independent_scenes._spec_json(made)}))
+    assert not is_complete(tmp_path / "old", spec) and is_complete(tmp_path / "new", spec)
+
+
+def test_the_appearance_clips_keep_newtons_gust_without_self_contact(monkeypatch):
+    # their folder identity (appearance.scene_info) does not record it: a cached clip must stay what it was
+    spec = AppearanceSceneSpec(motion="newton", gt_grid=7, grid=5, frames=2)
+    (params,) = _newton_params(monkeypatch, lambda: newton_motion(spec))
+    assert not params.self_contact
+
+
 def test_newton_cloth_hangs_from_its_pins_and_billows():
     pytest.importorskip("newton")
     from saft.synthetic.newton_cloth import simulate_newton_cloth
@@ -88,7 +133,7 @@ def test_newton_cloth_hangs_from_its_pins_and_billows():
 def test_write_scenario_tiny(tmp_path):
     pytest.importorskip("newton")
     spec = IndependentSceneSpec(gt_grid=8, grid=5, frames=3, width=48, height=36, spp=4, texture_size=64,
-                                gt_points=200, newton=NewtonClothParams(substeps=4, iterations=4))
+                                gt_points=200, newton=NewtonClothParams(substeps=4, iterations=4, self_contact=True))
     folders = write_scenario(tmp_path, "fold", spec)
     assert sorted(f.name for f in folders) == sorted(scene_names(("fold",)))
     ind, mat = load_scene(tmp_path / "fold_independent_pinned"), load_scene(tmp_path / "fold_matched_unpinned")
