@@ -13,6 +13,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from saft.scene.mesh import vertex_normals
+
 
 def far_pairs(rest: np.ndarray, pos: np.ndarray, distance: float, rest_min: float) -> np.ndarray:
     """(P, 2) vertex pairs closer than `distance` in `pos` and further than `rest_min` apart in `rest`."""
@@ -71,14 +73,6 @@ def crossing_triangles(pos: np.ndarray, tri: np.ndarray) -> int:
             if not np.isin(tri[t2], tri[t]).any():
                 out.add((min(t, t2), max(t, t2)))
     return len(out)
-
-
-def vertex_normals(pos: np.ndarray, tri: np.ndarray) -> np.ndarray:
-    fn = np.cross(pos[tri[:, 1]] - pos[tri[:, 0]], pos[tri[:, 2]] - pos[tri[:, 0]])
-    n = np.zeros_like(pos)
-    for k in range(3):
-        np.add.at(n, tri[:, k], fn)
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
 
 
 def side(pos: np.ndarray, tri: np.ndarray, pairs: np.ndarray) -> np.ndarray:
