@@ -65,7 +65,9 @@ def test_the_dense_solver_keeps_its_factors_in_the_cache_too():
     x2, g2, s2 = _run(t, p2, top, cache, solver="dense")
     x2_ref, g2_ref, s2_ref = _run(*_case(1.01), solver="dense")
     np.testing.assert_allclose(x2.numpy(), x2_ref.numpy(), rtol=0, atol=5e-8)
-    np.testing.assert_allclose(g2.numpy(), g2_ref.numpy(), rtol=1e-4, atol=1e-7 * float(g2_ref.abs().max()))
+    # float32 factors, CG to 1e-6 of each right-hand side: the gradients agree to that tolerance, not below it
+    # (1e-7 held on an AMD EPYC by chance; an Intel Xeon's BLAS differs by 8e-4 relative on 1e-6-sized entries)
+    np.testing.assert_allclose(g2.numpy(), g2_ref.numpy(), rtol=1e-4, atol=1e-6 * float(g2_ref.abs().max()))
     assert s2_ref["factorizations"] >= 1 and s2["factorizations"] < s2_ref["factorizations"]
     assert "dense" not in str(cache.state_dict().keys())
 

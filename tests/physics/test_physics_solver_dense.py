@@ -116,7 +116,13 @@ def test_compiled_cg_gives_the_eager_result():
         s = _solver(t, tol=1e-10, compile=compile)
         x = s.solve(_t(A1), _t(b), s.solve(_t(A0), _t(b)))
         res.append((x.numpy(), s.stats.as_dict()))
-    assert res[1][1] == res[0][1] and res[0][1]["fallbacks"] == 0
+    # the same solve: every counter equal, but the iterations may differ by one, since Inductor's fused
+    # reductions sum in another order than eager on some CPUs (17 against 16 on an Intel Xeon); a lost update
+    # gives a wrong solution below or many more iterations
+    eager, compiled = res[0][1], res[1][1]
+    assert {k: v for k, v in compiled.items() if k != "iterations"} == {k: v for k, v in eager.items()
+                                                                      if k != "iterations"}
+    assert abs(compiled["iterations"] - eager["iterations"]) <= 1 and eager["fallbacks"] == 0
     assert np.linalg.norm(A1m @ res[1][0] - b) <= 1e-10 * np.linalg.norm(b)
     np.testing.assert_allclose(res[1][0], res[0][0], rtol=0, atol=1e-8 * np.abs(res[0][0]).max())
 
