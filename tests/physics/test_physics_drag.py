@@ -100,3 +100,65 @@ def test_drag_vjp_equals_autograd_of_the_force():
     got = drag_vjp(x.detach(), vel.detach(), t.triangles, c.detach(), lam)
     for r, o in zip(ref, got):
         assert torch.allclose(r, o, rtol=1e-10, atol=1e-14)
+
+
+def _wind_setup(frames=5):
+    v, q = grid_mesh(4, wave=0.04)
+    t = ClothTopology.from_quads(v, q)
+    p = PhysicsParams.default()
+    p.log10_drag = torch.tensor(0.2, dtype=torch.float64)
+    g = torch.Generator().manual_seed(3)
+    p.wind = 0.8 * torch.randn(frames - 1, 3, generator=g, dtype=torch.float64)
+    return t, p
+
+
+def test_zero_wind_is_still_air_bit_for_bit_and_needs_the_drag():
+    t, p = _wind_setup()
+    v0 = torch.zeros_like(t.template)
+    v0[:, 2] = 0.7
+    still = rollout(t, t.template, v0, PhysicsParams(p.log10_Y, p.log10_B, p.log10_S, p.damping, p.a_const,
+                                                     log10_drag=p.log10_drag), num_frames=5)
+    p.wind = torch.zeros(4, 3, dtype=torch.float64)
+    assert torch.equal(still, rollout(t, t.template, v0, p, num_frames=5))
+    p.log10_drag = None
+    with pytest.raises(ValueError, match="wind needs the air drag"):
+        rollout(t, t.template, v0, p, num_frames=5)
+
+
+def test_a_sheet_at_rest_is_pushed_along_the_wind():
+    t = _flat(5)
+    p = PhysicsParams.default()
+    p.a_const = torch.zeros(3, dtype=torch.float64)
+    p.log10_drag = torch.tensor(0.0, dtype=torch.float64)
+    p.wind = torch.tensor([[0.0, 0.0, 1.5]], dtype=torch.float64).expand(9, 3)   # across the sheet (its normal)
+    moved = rollout(t, t.template, None, p, num_frames=10, frame_dt=1 / 30)
+    dz = (moved[-1] - t.template)[:, 2]
+    assert float(dz.min()) > 0.0
+    p.wind = -p.wind
+    assert torch.allclose(rollout(t, t.template, None, p, num_frames=10, frame_dt=1 / 30)[-1, :, 2] - t.template[:, 2],
+                          -dz, atol=1e-9)
+
+
+def test_rollout_wind_gradient_matches_central_differences_with_pins():
+    t, p = _wind_setup()
+    v0 = torch.zeros_like(t.template)
+    v0[:, 1] = 0.5
+    g = torch.Generator().manual_seed(4)
+    weights = torch.randn(5, t.num_vertices, 3, generator=g, dtype=torch.float64)
+    pinned = torch.tensor([0, 4])
+
+    def loss(wind, l_drag):
+        q = PhysicsParams(p.log10_Y, p.log10_B, p.log10_S, p.damping, p.a_const, log10_drag=l_drag, wind=wind)
+        return (rollout(t, t.template, v0, q, num_frames=5, pinned=pinned, tol=1e-13) * weights).sum()
+
+    wind = p.wind.clone().requires_grad_(True)
+    l_drag = p.log10_drag.clone().requires_grad_(True)
+    gw, gc = torch.autograd.grad(loss(wind, l_drag), (wind, l_drag))
+    d = torch.randn(wind.shape, generator=g, dtype=torch.float64)
+    eps = 1e-6
+    with torch.no_grad():
+        fd = (loss(p.wind + eps * d, p.log10_drag) - loss(p.wind - eps * d, p.log10_drag)) / (2 * eps)
+        fdc = (loss(p.wind, p.log10_drag + eps) - loss(p.wind, p.log10_drag - eps)) / (2 * eps)
+    assert float((gw * d).sum()) == pytest.approx(float(fd), rel=1e-5)
+    assert float(gc) == pytest.approx(float(fdc), rel=1e-5)
+    assert float(gw[-1].abs().sum()) > 0.0   # the last transition's wind moves the last frame

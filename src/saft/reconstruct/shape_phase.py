@@ -14,7 +14,8 @@ at frame 0 (saft.reconstruct.initial_velocity; not in the paper). The optimized 
 to their ranges), a constant acceleration (gravity + mean wind), per-vertex per-frame accelerations and a per-frame
 affine acceleration field over the template (saft.reconstruct.force_field; not in the paper) and the relative
 shading's light (saft.reconstruct.light) and, with soft anchors (shape.anchors), log10 of each vertex's anchor
-stiffness and, with shape.lr_v0 > 0, the affine velocity at frame 0 (from the tracks), each by its own clipped Adam.
+stiffness and, with shape.lr_v0 > 0, the affine velocity at frame 0 (from the tracks), and where the air drag is
+kept, its coefficient and, with shape.lr_wind > 0, a per-frame wind, each by its own clipped Adam.
 """
 
 from __future__ import annotations
@@ -32,13 +33,14 @@ from saft.physics.factor_cache import FactorCache
 from saft.reconstruct.config import PhysicsConfig, ShapeConfig
 from saft.reconstruct.frame_schedule import FrameSchedule, lr_factor, window_first_frame
 from saft.reconstruct.context import PhaseContext
-from saft.reconstruct.force_field import affine_basis, total_accelerations
-from saft.reconstruct.initial_velocity import initial_velocity, start_velocity, velocity_prior
+from saft.reconstruct.force_field import affine_basis
+from saft.reconstruct.initial_velocity import start_velocity, velocity_prior
 from saft.reconstruct.light import curved_start_in_motion, initial_light, plain_cloth
 from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_loss
 from saft.reconstruct import new_frame_rate
 from saft.reconstruct.silhouette_reach import reach_px, silhouette_weights
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
+from saft.reconstruct.shape_params import FrameStates, ShapeParams
 from saft.reconstruct.step_guard import StepGuard
 from saft.reconstruct.air_drag import run_damping_and_drag
 from saft.reconstruct.swing_weights import swing_shape_config
@@ -51,68 +53,6 @@ from saft.reconstruct.window_hold import outside_window, per_frame, restore_outs
 # the caches and are paged in and out by the allocator; BENCHMARKS.md).
 def render_chunk(device) -> int:
     return 1 if torch.device(device).type == "cpu" else 8
-
-
-@dataclass
-class ShapeParams:
-    log10_Y: torch.Tensor
-    log10_B: torch.Tensor
-    log10_S: torch.Tensor
-    const_accel: torch.Tensor      # (3,)
-    vertex_accel: torch.Tensor     # (N-1, V, 3): during the substeps from frame k to k+1
-    field_accel: torch.Tensor | None = None   # (N-1, 4, 3): the affine field's coefficients (force_field.py)
-    light: torch.Tensor | None = None         # (3,): first-order light vector of the relative shading (render.shading)
-    anchor_log10: torch.Tensor | None = None  # (V,): log10 of the soft anchors' stiffness per unit mass (s^-2)
-    v0_field: torch.Tensor | None = None      # (4, 3): the affine velocity at frame 0 (initial_velocity.py)
-    log10_drag: torch.Tensor | None = None    # 0-dim: log10 of the air drag coefficient (physics.air_drag > 0)
-
-    def tensors(self) -> dict[str, torch.Tensor]:
-        t = {"log10_Y": self.log10_Y, "log10_B": self.log10_B, "log10_S": self.log10_S,
-             "const_accel": self.const_accel, "vertex_accel": self.vertex_accel}
-        if self.field_accel is not None:
-            t["field_accel"] = self.field_accel
-        if self.light is not None:
-            t["light"] = self.light
-        if self.anchor_log10 is not None:
-            t["anchor_log10"] = self.anchor_log10
-        if self.v0_field is not None:
-            t["v0_field"] = self.v0_field
-        if self.log10_drag is not None:
-            t["log10_drag"] = self.log10_drag
-        return t
-
-    def velocity(self, basis: torch.Tensor) -> torch.Tensor | None:   # (V, 3) at frame 0, or None (at rest)
-        return initial_velocity(self.v0_field, basis)
-
-    def accelerations(self, basis: torch.Tensor, lo: int, hi: int) -> torch.Tensor:
-        """(hi - lo, V, 3) external accelerations beyond the constant one, frames lo..hi-1: D_f plus the
-        affine field when it is on."""
-        field = self.field_accel[lo:hi] if self.field_accel is not None else None
-        return total_accelerations(self.vertex_accel[lo:hi], field, basis)
-
-
-@dataclass
-class FrameStates:
-    """Detached positions and velocities at every frame boundary of the latest simulation that reached
-    them: the start states of windowed epochs (shape.window > 0)."""
-
-    x: torch.Tensor                # (N, V, 3)
-    v: torch.Tensor                # (N, V, 3)
-    frames: int = 1                # frames 0..frames-1 hold states
-    fresh: int = 1                 # frames 0..fresh-1 hold the states of the current parameters
-
-    def update(self, start: int, x: torch.Tensor, v: torch.Tensor) -> None:
-        n = x.shape[0]
-        self.x[start:start + n] = x.detach()
-        self.v[start:start + n] = v.detach()
-        self.frames = max(self.frames, start + n)
-        if start < self.fresh:
-            self.fresh = max(self.fresh, start + n)
-
-    def stepped(self, first_changed: int) -> None:
-        """The optimizer changed the accelerations from frame `first_changed` on (0: every parameter): the
-        states after that frame no longer match the parameters."""
-        self.fresh = min(self.fresh, first_changed + 1)
 
 
 @dataclass
@@ -150,6 +90,8 @@ def _make_optimizer(params: ShapeParams, cfg: ShapeConfig) -> ClippedAdam:
         specs.append(ParamSpec("v0_field", params.v0_field, cfg.lr_v0))
     if params.log10_drag is not None and cfg.lr_air_drag > 0:   # a held drag (lr 0) is never stepped
         specs.append(ParamSpec("log10_drag", params.log10_drag, cfg.lr_air_drag))
+    if params.wind is not None:
+        specs.append(ParamSpec("wind", params.wind, cfg.lr_wind))
     if cfg.optimize_stiffness:
         specs += [ParamSpec(n, getattr(params, n), cfg.lr_stiffness) for n in ("log10_Y", "log10_B", "log10_S")]
     return ClippedAdam(specs, clip=cfg.grad_clip, quantile=cfg.autoclip_quantile, history=cfg.autoclip_history,
@@ -195,12 +137,15 @@ def new_shape_state(num_frames: int, num_vertices: int, gravity: np.ndarray, phy
                                  requires_grad=True) if anchors else None),
         v0_field=torch.zeros(4, 3, dtype=dtype, device=device, requires_grad=True) if cfg.lr_v0 > 0 else None,
         log10_drag=(torch.tensor(math.log10(phys.air_drag), dtype=dtype, device=device, requires_grad=True)
-                    if phys.air_drag > 0 else None))
+                    if phys.air_drag > 0 else None),
+        wind=(torch.zeros(max(num_frames - 1, 0), 3, dtype=dtype, device=device, requires_grad=True)
+              if phys.air_drag > 0 and cfg.lr_wind > 0 else None))
     return ShapeState(params, _make_optimizer(params, cfg), _make_guard(cfg))
 
 
 def restore_shape_state(saved: dict, cfg: ShapeConfig, device) -> ShapeState:
-    always_learned = ("const_accel", "vertex_accel", "field_accel", "light", "anchor_log10", "v0_field", "log10_drag")
+    always_learned = ("const_accel", "vertex_accel", "field_accel", "light", "anchor_log10", "v0_field", "log10_drag",
+                      "wind")
     p = {k: v.to(device).requires_grad_(k in always_learned or cfg.optimize_stiffness) for k, v in saved["params"].items()}
     params = ShapeParams(**p)
     state = ShapeState(params, _make_optimizer(params, cfg), _make_guard(cfg), saved["epoch"],
@@ -241,7 +186,8 @@ class ShapeSimulator:
         """(num_frames, V, 3) positions, frame 0 = template; `factors`: the solver's cache across epochs."""
         accel = params.accelerations(self.field_basis, 0, num_frames - 1)
         v0 = params.velocity(self.field_basis)
-        return rollout(self.topology, self.template, v0, self._physics(params, accel), num_frames=num_frames,
+        physics = self._physics(params, accel, params.winds(0, num_frames - 1))
+        return rollout(self.topology, self.template, v0, physics, num_frames=num_frames,
                        substeps=self.phys.substeps, frame_dt=self.frame_dt, pinned=self.pinned,
                        hessian=self.phys.hessian, anchor_positions=self.template, factor_cache=factors)
 
@@ -262,19 +208,21 @@ class ShapeSimulator:
             v0 = params.velocity(self.field_basis) if start == 0 else None
             v0 = torch.zeros_like(x0) if v0 is None else v0
         a_sub = params.accelerations(self.field_basis, start, num_frames - 1).repeat_interleave(S, dim=0)
-        pos = rollout(self.topology, x0, v0, self._physics(params, a_sub), num_frames=(n - 1) * S + 1, substeps=1,
+        wind = params.winds(start, num_frames - 1)
+        physics = self._physics(params, a_sub, None if wind is None else wind.repeat_interleave(S, dim=0))
+        pos = rollout(self.topology, x0, v0, physics, num_frames=(n - 1) * S + 1, substeps=1,
                       frame_dt=self.frame_dt / S, pinned=self.pinned, hessian=self.phys.hessian,
                       anchor_positions=self.template, factor_cache=factors, first_step=start * S)
         x = pos[::S]
         v = torch.cat([v0[None], (pos[S::S] - pos[S - 1::S]) / (self.frame_dt / S)], dim=0)
         return x, v
 
-    def _physics(self, params: ShapeParams, a_vert: torch.Tensor):
+    def _physics(self, params: ShapeParams, a_vert: torch.Tensor, wind: torch.Tensor | None):
         damping = torch.tensor(self.damping, dtype=self.template.dtype, device=self.template.device)
         anchor = None if params.anchor_log10 is None else 10.0 ** params.anchor_log10
         return PhysicsParams(log10_Y=params.log10_Y, log10_B=params.log10_B, log10_S=params.log10_S,
                              damping=damping, a_const=params.const_accel, a_vert=a_vert, anchor=anchor,
-                             log10_drag=params.log10_drag)
+                             log10_drag=params.log10_drag, wind=None if params.log10_drag is None else wind)
 
     def held_share(self, params: ShapeParams, floor: float) -> torch.Tensor:
         """R_A: the mean over vertices of how far each soft anchor holds its vertex, linear in log10 w from
