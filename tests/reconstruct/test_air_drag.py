@@ -125,3 +125,16 @@ def test_the_swing_gate_drops_the_wind_with_the_drag(monkeypatch):
     ad.run_damping_and_drag(state, sim, None, None, phys)
     assert state.params.wind is None and "wind" not in state.optimizer.specs
     assert "wind" not in state.state_dict()["params"]
+
+
+def test_the_wind_change_is_the_mean_squared_step_over_the_window_and_the_row_before():
+    _, off = _setup(PhysicsConfig(air_drag=0.6))
+    assert float(off.params.wind_change(0, 6)) == 0.0
+    _, on = _setup(PhysicsConfig(air_drag=0.6), ShapeConfig(lr_wind=0.05))
+    with torch.no_grad():
+        on.params.wind[:, 0] = torch.tensor([0.0, 1.0, 1.0, 3.0, 3.0], dtype=on.params.wind.dtype)
+    assert float(on.params.wind_change(0, 6)) == pytest.approx((1 + 0 + 4 + 0) / 4)
+    assert float(on.params.wind_change(3, 6)) == pytest.approx((4 + 0) / 2)   # rows 2..4: from the held row 2
+    assert float(on.params.wind_change(0, 2)) == 0.0                           # one transition: nothing changes
+    on.params.wind_change(0, 6).backward()
+    assert float(on.params.wind.grad.abs().sum()) > 0

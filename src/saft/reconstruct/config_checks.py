@@ -47,6 +47,7 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "shape.lr_stiffness": (0, INF, True),
     "shape.lr_air_drag": (0, INF, True),
     "shape.lr_wind": (0, INF, True),
+    "shape.lambda_wind_change": (0, INF, True),
     "shape.lr_const_accel": (0, INF, True),
     "shape.lr_vertex_accel": (0, INF, True),
     "shape.lr_field_accel": (0, INF, True),

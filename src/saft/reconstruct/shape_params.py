@@ -48,6 +48,15 @@ class ShapeParams:
         field = self.field_accel[lo:hi] if self.field_accel is not None else None
         return total_accelerations(self.vertex_accel[lo:hi], field, basis)
 
+    def wind_change(self, start: int, frames: int) -> torch.Tensor:
+        """The mean squared change of the wind from one transition to the next, (m/s)², over the transitions a
+        window of frames start..frames-1 simulates and the one before it (held, so that the window's first wind
+        stays continuous with it); 0 without a wind or with fewer than two transitions."""
+        rows = None if self.wind is None else self.wind[max(start - 1, 0):frames - 1]
+        if rows is None or rows.shape[0] < 2:
+            return self.const_accel.new_zeros(())
+        return (rows[1:] - rows[:-1]).pow(2).sum(dim=1).mean()
+
     def winds(self, lo: int, hi: int) -> torch.Tensor | None:
         """(hi - lo, 3) the wind of transitions lo..hi-1, or None (still air)."""
         return None if self.wind is None else self.wind[lo:hi]

@@ -297,6 +297,8 @@ def _regularizers(ctx: PhaseContext, sim: ShapeSimulator, params: ShapeParams, c
     v0 = velocity_prior(params.velocity(sim.field_basis) if start == 0 else None, energy)
     reg = (cfg.lambda_energy * energy + cfg.lambda_force * force + cfg.lambda_track * track
            + cfg.lambda_anchor * held + cfg.lambda_v0 * v0)
+    if params.wind is not None:
+        reg = reg + cfg.lambda_wind_change * params.wind_change(start, frames)
     return energy, force, track, held, v0, reg
 
 
@@ -351,6 +353,8 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
              + cfg.lambda_energy * float(energy.detach()) + cfg.lambda_force * float(force.detach())
              + cfg.lambda_track * float(track.detach()) + cfg.lambda_anchor * float(held.detach())
              + cfg.lambda_v0 * float(v0.detach()))
+    if params.wind is not None:
+        total += cfg.lambda_wind_change * float(params.wind_change(start, frames).detach())
     if cfg.normalize_loss and total > 0:
         # Dividing the loss by its detached value scales every gradient by 1/L (scale-free steps).
         for t in params.tensors().values():
