@@ -57,7 +57,7 @@ def _params(seed: int):
     va = torch.randn(5, 4, 3, generator=g, dtype=torch.float64).requires_grad_(True)
     fa = torch.randn(5, 4, 3, generator=g, dtype=torch.float64).requires_grad_(True)
     c = torch.randn(3, generator=g, dtype=torch.float64).requires_grad_(True)
-    return SimpleNamespace(vertex_accel=va, field_accel=fa, const_accel=c, wind=None)
+    return SimpleNamespace(vertex_accel=va, field_accel=fa, const_accel=c)
 
 
 def _grads(p, seed: int):

@@ -33,17 +33,13 @@ def anchor_inputs(anchor, anchor_positions, x0: torch.Tensor, num_vertices: int,
     return anchor, at.detach()
 
 
-def drag_inputs(l_drag, wind, triangles, num_frames: int, dev, dt):
-    """(log10 c as a 0-dim tensor, the wind (num_frames - 1, 3) or None), or (None, None) without drag.
-    A wind without drag is an error: it acts only through the drag."""
+def drag_input(l_drag, triangles, dev, dt) -> torch.Tensor | None:
+    """log10 c as a 0-dim tensor, or None without drag."""
     if l_drag is None:
-        if wind is not None:
-            raise ValueError("a wind needs the air drag (params.log10_drag): it acts only through the drag")
-        return None, None
+        return None
     if triangles is None:
         raise ValueError("air drag needs the topology's triangles (ClothTopology.from_quads)")
-    l_drag = torch.as_tensor(l_drag).to(device=dev, dtype=dt).reshape(())
-    return l_drag, frame_rows(wind, "wind", num_frames, (3,), dev, dt)
+    return torch.as_tensor(l_drag).to(device=dev, dtype=dt).reshape(())
 
 
-__all__ = ["anchor_inputs", "drag_inputs", "frame_rows"]
+__all__ = ["anchor_inputs", "drag_input", "frame_rows"]

@@ -6,9 +6,8 @@ a_ext = a_const + a_vert[k] during the substeps from frame k to frame k + 1.
 
 Soft anchors (params.anchor = w, per unit mass): f += -m w (x - p), with h^2 m w on A's diagonal.
 
-Air drag (params.log10_drag = log10 c, optional; saft.physics.drag): f += F_drag(x, v - w_k), the pressure of
-the air along each triangle's normal at the substep's start, explicit (the system matrix is unchanged); the air
-moves with the wind w_k (params.wind, per frame transition) or is still.
+Air drag (params.log10_drag = log10 c, optional; saft.physics.drag): f += F_drag(x, v), the pressure of still
+air along each triangle's normal at the substep's start, explicit (the system matrix is unchanged).
 
 Pinned vertices: their velocity is prescribed, v1_P = (target - x_P) / h, and the system is solved for the
 free DOFs only (rows/columns of P replaced by the identity); x1_P is set to the target exactly.
@@ -32,7 +31,7 @@ from saft.physics.drag import drag_force, drag_vjp
 from saft.physics.energy import LN10, ElementEval  # noqa: F401 (ElementEval: tests patch it here)
 from saft.physics.finite import FiniteChecks, check_finite
 from saft.physics.kernels import StepKernels
-from saft.physics.rollout_inputs import anchor_inputs, drag_inputs, frame_rows
+from saft.physics.rollout_inputs import anchor_inputs, drag_input, frame_rows
 from saft.physics.factor_cache import FactorCache
 from saft.physics.solver import SolveStats, sparse_csr
 from saft.physics.solver_choice import DENSE_SOLVERS, SOLVERS, solver_for  # noqa: F401 (DENSE_SOLVERS, SOLVERS: API)
@@ -60,8 +59,6 @@ class PhysicsParams:
             towards its anchor position p_i by the force -m_i w_i (x_i - p_i), a zero-length spring treated
             implicitly like the cloth's own forces (a soft pin; w h^2 >> 1 holds the vertex in place).
     log10_drag: 0-dim log10 of the air drag coefficient c (kg/m^3, saft.physics.drag), or None (no drag).
-    wind: (N - 1, 3) the air's velocity (m/s) during the substeps from frame k to k + 1, against which the drag
-          acts, or None (still air); needs log10_drag.
     """
 
     log10_Y: torch.Tensor
@@ -72,7 +69,6 @@ class PhysicsParams:
     a_vert: torch.Tensor | None = None
     anchor: torch.Tensor | None = None
     log10_drag: torch.Tensor | None = None
-    wind: torch.Tensor | None = None
 
     @classmethod
     def default(cls, num_frames: int | None = None, num_vertices: int | None = None, *, device=None,
@@ -94,9 +90,9 @@ class PhysicsParams:
         return p
 
     def tensors(self):
-        """The parameters in constructor order; the anchors, the drag and the wind only when there are any."""
+        """The parameters in constructor order; the anchors and the drag only when there are any."""
         base = (self.log10_Y, self.log10_B, self.log10_S, self.damping, self.a_const, self.a_vert)
-        return base + tuple(t for t in (self.anchor, self.log10_drag, self.wind) if t is not None)
+        return base + tuple(t for t in (self.anchor, self.log10_drag) if t is not None)
 
 
 class _Sim:
@@ -218,7 +214,7 @@ def _one_cpu_thread(fn):
 class _RolloutFn(torch.autograd.Function):
     @staticmethod
     @_one_cpu_thread
-    def forward(ctx, sim: _Sim, x0, v0, lY, lB, lS, damping, a_const, a_vert, anchor, l_drag, wind):
+    def forward(ctx, sim: _Sim, x0, v0, lY, lB, lS, damping, a_const, a_vert, anchor, l_drag):
         t = sim.t
         Y, B, S = (10.0 ** float(lY)), (10.0 ** float(lB)), (10.0 ** float(lS))
         d = float(damping)
@@ -260,8 +256,8 @@ class _RolloutFn(torch.autograd.Function):
                 if anchor_mass is not None:
                     gradE = gradE + anchor_mass * (x - anchor_at)
                     A = sim.anchor_system(A, anchor_mass)
-                if drag_c is not None:  # explicit: at the substep's start (x, v), the air at the frame's wind
-                    gradE = gradE - drag_force(x, v if wind is None else v - wind[k], t.triangles, drag_c)
+                if drag_c is not None:  # explicit: at the substep's start (x, v)
+                    gradE = gradE - drag_force(x, v, t.triangles, drag_c)
                 b = (m3 * vd + h * (m3 * a - gradE)).reshape(-1)
                 if pinned is not None:
                     tgt = sim.target(x0, k, s)
@@ -292,19 +288,17 @@ class _RolloutFn(torch.autograd.Function):
         ctx.A_saved = A_saved if keep_A else None
         empty = x0.new_empty(0)
         ctx.save_for_backward(x0, saved, lY, lB, lS, damping, a_const, a_vert if a_vert is not None else empty,
-                              anchor if anchor is not None else empty, l_drag if l_drag is not None else empty,
-                              wind if wind is not None else empty)
+                              anchor if anchor is not None else empty, l_drag if l_drag is not None else empty)
         ctx.has_avert = a_vert is not None
         ctx.has_anchor = anchor is not None
         ctx.has_drag = l_drag is not None
-        ctx.has_wind = wind is not None
         return positions
 
     @staticmethod
     @_one_cpu_thread
     def backward(ctx, grad_pos):
         sim: _Sim = ctx.sim
-        x0, saved, lY, lB, lS, damping, a_const, a_vert, anchor, l_drag, wind = ctx.saved_tensors
+        x0, saved, lY, lB, lS, damping, a_const, a_vert, anchor, l_drag = ctx.saved_tensors
         t = sim.t
         Y, B, S = (10.0 ** float(lY)), (10.0 ** float(lB)), (10.0 ** float(lS))
         d = float(damping)
@@ -328,7 +322,6 @@ class _RolloutFn(torch.autograd.Function):
         g_anchor = torch.zeros(V, 3, dtype=x0.dtype, device=x0.device) if ctx.has_anchor else None
         drag_c = 10.0 ** l_drag if ctx.has_drag else None
         g_drag = torch.zeros_like(gY)
-        g_wind = torch.zeros_like(wind) if ctx.has_wind else None
         checks = FiniteChecks(x0.device)
         for k in range(N - 2, -1, -1):
             for s in range(ns - 1, -1, -1):
@@ -368,12 +361,10 @@ class _RolloutFn(torch.autograd.Function):
                 gv = d * mlam
                 if drag_c is not None:
                     # lam.(b - A v1) holds h lam.F_drag(x, v): its x, v and c derivatives
-                    dx, dv, dc = drag_vjp(x, v - wind[k] if ctx.has_wind else v, t.triangles, drag_c, lamV)
+                    dx, dv, dc = drag_vjp(x, v, t.triangles, drag_c, lamV)
                     gx = gx + h * dx
                     gv = gv + h * dv
                     g_drag += h * dc
-                    if g_wind is not None:   # the drag sees v - w: d/dw = -sum over vertices of d/dv
-                        g_wind[k] -= h * dv.sum(dim=0)
                 checks.check(gx, "position adjoint", k, s)
             checks.flush()
             gx = gx + grad_pos[k]
@@ -399,7 +390,6 @@ class _RolloutFn(torch.autograd.Function):
             g_a if ctx.has_avert else None,
             g_anchor.sum(dim=1) if ctx.has_anchor else None,
             g_drag * drag_c * LN10 if ctx.has_drag else None,  # dc/dlog10 c = c ln10
-            g_wind,
         )
 
 
@@ -462,7 +452,7 @@ def rollout(
         raise ValueError("num_frames must be >= 1")
     a_vert = frame_rows(params.a_vert, "a_vert", num_frames, (t.num_vertices, 3), dev, dt)
     anchor, anchor_positions = anchor_inputs(params.anchor, anchor_positions, x0, t.num_vertices, dev, dt)
-    l_drag, wind = drag_inputs(params.log10_drag, params.wind, t.triangles, num_frames, dev, dt)
+    l_drag = drag_input(params.log10_drag, t.triangles, dev, dt)
     sim = _Sim(t, num_frames, substeps, frame_dt, pinned, pinned_positions, hessian, solver, tol, compile,
                kernels, anchor_positions if anchor is not None else None)
     sim.stats_out = stats
@@ -474,7 +464,7 @@ def rollout(
 
     out = _RolloutFn.apply(
         sim, x0, v0, sc(params.log10_Y), sc(params.log10_B), sc(params.log10_S), sc(params.damping),
-        torch.as_tensor(params.a_const).to(**f).reshape(3), a_vert, anchor, l_drag, wind,
+        torch.as_tensor(params.a_const).to(**f).reshape(3), a_vert, anchor, l_drag,
     )
     if stats is not None:
         stats.update(sim.stats.as_dict())

@@ -32,9 +32,6 @@ def run_damping_and_drag(state, sim, tracks, camera, phys) -> float:
     if drag is not None and phys.air_drag_where == "swing" and chosen == phys.damping:
         state.params.log10_drag = None
         state.optimizer.drop("log10_drag")
-        if state.params.wind is not None:   # the wind acts only through the drag
-            state.params.wind = None
-            state.optimizer.drop("wind")
         log.info("air drag off: the run keeps the damping %.4g (physics.air_drag_where = \"swing\")", chosen)
     return chosen
 

@@ -220,12 +220,6 @@ class ShapeConfig:
     optimize_stiffness: bool = True
     lr_stiffness: float = 2e-2
     lr_air_drag: float = 2e-2             # of log10 c, the air drag coefficient (physics.air_drag > 0; 0 = held)
-    # Learning rate (m/s per epoch) of a per-frame wind, the air's velocity against which the drag acts
-    # (saft.physics.drag; issue 29, not in the paper; 0 = still air). Only where the drag is kept
-    # (physics.air_drag_where); a new frame's wind starts from the last one (shape.warm_start_new_frames).
-    lr_wind: float = 0.0
-    # Weight of the mean squared change of that wind from one frame transition to the next ((m/s)²; 0 = free).
-    lambda_wind_change: float = 0.0
     lr_const_accel: float = 1e-1
     lr_vertex_accel: float = 2e-1
     # Learning rate of a per-frame affine acceleration field over the template, added to the per-vertex

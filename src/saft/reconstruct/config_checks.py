@@ -46,8 +46,6 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "shape.force_along_weight_pinned": (0, 1, True),
     "shape.lr_stiffness": (0, INF, True),
     "shape.lr_air_drag": (0, INF, True),
-    "shape.lr_wind": (0, INF, True),
-    "shape.lambda_wind_change": (0, INF, True),
     "shape.lr_const_accel": (0, INF, True),
     "shape.lr_vertex_accel": (0, INF, True),
     "shape.lr_field_accel": (0, INF, True),

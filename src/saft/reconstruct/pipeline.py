@@ -248,11 +248,9 @@ def shape_params_summary(shape_state: dict, cfg: SaftConfig, scene: Scene) -> di
         "constant_acceleration": [float(v) for v in p["const_accel"]],
         **({"light": [float(v) for v in p["light"]]} if "light" in p else {}),
         **({"air_drag": 10 ** float(p["log10_drag"])} if "log10_drag" in p else {}),
-        **({"wind": [[float(c) for c in row] for row in p["wind"]]} if "wind" in p else {}),
         **(held_vertices(p["anchor_log10"], scene.frame_dt / cfg.physics.substeps) if "anchor_log10" in p else {}),
         "damping": cfg.physics.damping if damping is None else damping, "density": cfg.physics.density,
         "frame_dt": scene.frame_dt, "substeps": cfg.physics.substeps,
         "units": {"Y": "N/m", "B": "N·m/rad²", "S": "N·m/rad²", "constant_acceleration": "m/s²", "air_drag": "kg/m³",
-                  "wind": "m/s per frame transition",
                   "forces.npy": "per-vertex accelerations, m/s², shape (frames-1, vertices, 3)"},
     }

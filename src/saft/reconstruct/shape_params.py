@@ -14,7 +14,7 @@ from saft.reconstruct.initial_velocity import initial_velocity
 
 
 # the parameters that only some runs have, in the order params.tensors() lists them
-OPTIONAL = ("field_accel", "light", "anchor_log10", "v0_field", "log10_drag", "wind")
+OPTIONAL = ("field_accel", "light", "anchor_log10", "v0_field", "log10_drag")
 
 
 @dataclass
@@ -29,7 +29,6 @@ class ShapeParams:
     anchor_log10: torch.Tensor | None = None  # (V,): log10 of the soft anchors' stiffness per unit mass (s^-2)
     v0_field: torch.Tensor | None = None      # (4, 3): the affine velocity at frame 0 (initial_velocity.py)
     log10_drag: torch.Tensor | None = None    # 0-dim: log10 of the air drag coefficient (physics.air_drag > 0)
-    wind: torch.Tensor | None = None          # (N-1, 3): the air's velocity per transition, m/s (shape.lr_wind > 0)
 
     def tensors(self) -> dict[str, torch.Tensor]:
         t = {"log10_Y": self.log10_Y, "log10_B": self.log10_B, "log10_S": self.log10_S,
@@ -47,19 +46,6 @@ class ShapeParams:
         affine field when it is on."""
         field = self.field_accel[lo:hi] if self.field_accel is not None else None
         return total_accelerations(self.vertex_accel[lo:hi], field, basis)
-
-    def wind_change(self, start: int, frames: int) -> torch.Tensor:
-        """The mean squared change of the wind from one transition to the next, (m/s)², over the transitions a
-        window of frames start..frames-1 simulates and the one before it (held, so that the window's first wind
-        stays continuous with it); 0 without a wind or with fewer than two transitions."""
-        rows = None if self.wind is None else self.wind[max(start - 1, 0):frames - 1]
-        if rows is None or rows.shape[0] < 2:
-            return self.const_accel.new_zeros(())
-        return (rows[1:] - rows[:-1]).pow(2).sum(dim=1).mean()
-
-    def winds(self, lo: int, hi: int) -> torch.Tensor | None:
-        """(hi - lo, 3) the wind of transitions lo..hi-1, or None (still air)."""
-        return None if self.wind is None else self.wind[lo:hi]
 
 
 @dataclass

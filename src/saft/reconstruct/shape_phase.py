@@ -14,8 +14,7 @@ at frame 0 (saft.reconstruct.initial_velocity; not in the paper). The optimized 
 to their ranges), a constant acceleration (gravity + mean wind), per-vertex per-frame accelerations and a per-frame
 affine acceleration field over the template (saft.reconstruct.force_field; not in the paper) and the relative
 shading's light (saft.reconstruct.light) and, with soft anchors (shape.anchors), log10 of each vertex's anchor
-stiffness and, with shape.lr_v0 > 0, the affine velocity at frame 0 (from the tracks), and where the air drag is
-kept, its coefficient and, with shape.lr_wind > 0, a per-frame wind, each by its own clipped Adam.
+stiffness and, with shape.lr_v0 > 0, the affine velocity at frame 0 (from the tracks), each by its own clipped Adam.
 """
 
 from __future__ import annotations
@@ -90,8 +89,6 @@ def _make_optimizer(params: ShapeParams, cfg: ShapeConfig) -> ClippedAdam:
         specs.append(ParamSpec("v0_field", params.v0_field, cfg.lr_v0))
     if params.log10_drag is not None and cfg.lr_air_drag > 0:   # a held drag (lr 0) is never stepped
         specs.append(ParamSpec("log10_drag", params.log10_drag, cfg.lr_air_drag))
-    if params.wind is not None:
-        specs.append(ParamSpec("wind", params.wind, cfg.lr_wind))
     if cfg.optimize_stiffness:
         specs += [ParamSpec(n, getattr(params, n), cfg.lr_stiffness) for n in ("log10_Y", "log10_B", "log10_S")]
     return ClippedAdam(specs, clip=cfg.grad_clip, quantile=cfg.autoclip_quantile, history=cfg.autoclip_history,
@@ -137,15 +134,12 @@ def new_shape_state(num_frames: int, num_vertices: int, gravity: np.ndarray, phy
                                  requires_grad=True) if anchors else None),
         v0_field=torch.zeros(4, 3, dtype=dtype, device=device, requires_grad=True) if cfg.lr_v0 > 0 else None,
         log10_drag=(torch.tensor(math.log10(phys.air_drag), dtype=dtype, device=device, requires_grad=True)
-                    if phys.air_drag > 0 else None),
-        wind=(torch.zeros(max(num_frames - 1, 0), 3, dtype=dtype, device=device, requires_grad=True)
-              if phys.air_drag > 0 and cfg.lr_wind > 0 else None))
+                    if phys.air_drag > 0 else None))
     return ShapeState(params, _make_optimizer(params, cfg), _make_guard(cfg))
 
 
 def restore_shape_state(saved: dict, cfg: ShapeConfig, device) -> ShapeState:
-    always_learned = ("const_accel", "vertex_accel", "field_accel", "light", "anchor_log10", "v0_field", "log10_drag",
-                      "wind")
+    always_learned = ("const_accel", "vertex_accel", "field_accel", "light", "anchor_log10", "v0_field", "log10_drag")
     p = {k: v.to(device).requires_grad_(k in always_learned or cfg.optimize_stiffness) for k, v in saved["params"].items()}
     params = ShapeParams(**p)
     state = ShapeState(params, _make_optimizer(params, cfg), _make_guard(cfg), saved["epoch"],
@@ -186,8 +180,7 @@ class ShapeSimulator:
         """(num_frames, V, 3) positions, frame 0 = template; `factors`: the solver's cache across epochs."""
         accel = params.accelerations(self.field_basis, 0, num_frames - 1)
         v0 = params.velocity(self.field_basis)
-        physics = self._physics(params, accel, params.winds(0, num_frames - 1))
-        return rollout(self.topology, self.template, v0, physics, num_frames=num_frames,
+        return rollout(self.topology, self.template, v0, self._physics(params, accel), num_frames=num_frames,
                        substeps=self.phys.substeps, frame_dt=self.frame_dt, pinned=self.pinned,
                        hessian=self.phys.hessian, anchor_positions=self.template, factor_cache=factors)
 
@@ -208,21 +201,19 @@ class ShapeSimulator:
             v0 = params.velocity(self.field_basis) if start == 0 else None
             v0 = torch.zeros_like(x0) if v0 is None else v0
         a_sub = params.accelerations(self.field_basis, start, num_frames - 1).repeat_interleave(S, dim=0)
-        wind = params.winds(start, num_frames - 1)
-        physics = self._physics(params, a_sub, None if wind is None else wind.repeat_interleave(S, dim=0))
-        pos = rollout(self.topology, x0, v0, physics, num_frames=(n - 1) * S + 1, substeps=1,
+        pos = rollout(self.topology, x0, v0, self._physics(params, a_sub), num_frames=(n - 1) * S + 1, substeps=1,
                       frame_dt=self.frame_dt / S, pinned=self.pinned, hessian=self.phys.hessian,
                       anchor_positions=self.template, factor_cache=factors, first_step=start * S)
         x = pos[::S]
         v = torch.cat([v0[None], (pos[S::S] - pos[S - 1::S]) / (self.frame_dt / S)], dim=0)
         return x, v
 
-    def _physics(self, params: ShapeParams, a_vert: torch.Tensor, wind: torch.Tensor | None):
+    def _physics(self, params: ShapeParams, a_vert: torch.Tensor):
         damping = torch.tensor(self.damping, dtype=self.template.dtype, device=self.template.device)
         anchor = None if params.anchor_log10 is None else 10.0 ** params.anchor_log10
         return PhysicsParams(log10_Y=params.log10_Y, log10_B=params.log10_B, log10_S=params.log10_S,
                              damping=damping, a_const=params.const_accel, a_vert=a_vert, anchor=anchor,
-                             log10_drag=params.log10_drag, wind=None if params.log10_drag is None else wind)
+                             log10_drag=params.log10_drag)
 
     def held_share(self, params: ShapeParams, floor: float) -> torch.Tensor:
         """R_A: the mean over vertices of how far each soft anchor holds its vertex, linear in log10 w from
@@ -297,8 +288,6 @@ def _regularizers(ctx: PhaseContext, sim: ShapeSimulator, params: ShapeParams, c
     v0 = velocity_prior(params.velocity(sim.field_basis) if start == 0 else None, energy)
     reg = (cfg.lambda_energy * energy + cfg.lambda_force * force + cfg.lambda_track * track
            + cfg.lambda_anchor * held + cfg.lambda_v0 * v0)
-    if params.wind is not None:
-        reg = reg + cfg.lambda_wind_change * params.wind_change(start, frames)
     return energy, force, track, held, v0, reg
 
 
@@ -353,8 +342,6 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
              + cfg.lambda_energy * float(energy.detach()) + cfg.lambda_force * float(force.detach())
              + cfg.lambda_track * float(track.detach()) + cfg.lambda_anchor * float(held.detach())
              + cfg.lambda_v0 * float(v0.detach()))
-    if params.wind is not None:
-        total += cfg.lambda_wind_change * float(params.wind_change(start, frames).detach())
     if cfg.normalize_loss and total > 0:
         # Dividing the loss by its detached value scales every gradient by 1/L (scale-free steps).
         for t in params.tensors().values():

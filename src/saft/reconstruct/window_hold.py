@@ -12,7 +12,7 @@ import torch
 
 def per_frame(params) -> list[torch.Tensor]:
     """The parameters indexed by frame transition."""
-    return [params.vertex_accel] + [t for t in (params.field_accel, params.wind) if t is not None]
+    return [params.vertex_accel] + ([params.field_accel] if params.field_accel is not None else [])
 
 
 def initial(params) -> list[torch.Tensor]:
