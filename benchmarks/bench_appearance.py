@@ -25,7 +25,9 @@ saft.evaluate.appearance):
 curved by the wind and its shading varies across it (AppearanceSceneSpec.start); scenes and runs are cached
 under names ending in ``_sN``. ``--motion newton``: the motion of independent_scenes' "gust" scenario from
 Newton's VBD on a 40 × 40 mesh (the template 17 × 17, 30 fps; AppearanceSceneSpec.motion), not saft's own
-simulator on the template's mesh: cached under names with ``_newton`` in them.
+simulator on the template's mesh, with Newton's self-contact (AppearanceSceneSpec.self_contact; the clips made
+before it, whose truth crossed itself, are made again, and the cached runs of a scene made again are redone):
+cached under names with ``_newton`` in them.
 """
 
 from __future__ import annotations
@@ -49,25 +51,30 @@ from saft.reconstruct import reconstruct
 from saft.reconstruct.config import load_saft_config
 from saft.scene import load_scene
 from saft.scene.mesh import read_obj
-from saft.synthetic.appearance import AppearanceSceneSpec, true_motion_on_template, write_appearance_scene
+from saft.synthetic.appearance import (AppearanceSceneSpec, mark_run, run_is_current, true_motion_on_template,
+                                      write_appearance_scene)
 from saft.synthetic.fabrics import FABRICS
 
 
 def phase1_texture(scene_dir: Path, out: Path, threads: int = 0) -> np.ndarray:
-    """The texture of saft's phase 1 on this scene (cached in `out`)."""
-    if (out / "texture.png").is_file():
+    """The texture of saft's phase 1 on this scene (cached in `out`, made again when the scene was)."""
+    if run_is_current(out, scene_dir, "texture.png"):
         return read_image(out / "texture.png")[..., :3]
     cfg = load_saft_config(None, ['run.device="cpu"', f"run.threads={threads}", "shape.enabled=false",
                                   "appearance.enabled=false"])
-    return reconstruct(load_scene(scene_dir), cfg, out, overwrite=True, quiet=True).texture
+    texture = reconstruct(load_scene(scene_dir), cfg, out, overwrite=True, quiet=True).texture
+    mark_run(out, scene_dir)
+    return texture
 
 
 def own_motion(scene_dir: Path, out: Path, threads: int = 0) -> tuple[np.ndarray, np.ndarray, float]:
     """saft's own motion (F, V, 3), its phase-1 texture and the motion's mean CD2 (1e-4 m²): `saft
-    reconstruct` of the scene with phase 3 off (cached in `out`: timings.json is written last)."""
-    if not (out / "timings.json").is_file():
+    reconstruct` of the scene with phase 3 off (cached in `out`: timings.json is written last; made again when
+    the scene was)."""
+    if not run_is_current(out, scene_dir, "timings.json"):
         cfg = load_saft_config(None, ['run.device="cpu"', f"run.threads={threads}", "appearance.enabled=false"])
         reconstruct(load_scene(scene_dir), cfg, out, overwrite=True, quiet=True)
+        mark_run(out, scene_dir)
     files = sorted((out / "meshes").glob("frame_*.obj"))
     positions = np.stack([read_obj(p).vertices for p in files]).astype(np.float64)
     cd2 = evaluate_result_dir(out, GroundTruthSpec(scene_dir / "gt"), write=False)["mean"]["cd2_1e-4m2"]

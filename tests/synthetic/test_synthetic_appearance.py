@@ -9,8 +9,9 @@ import pytest
 from saft.evaluate.appearance import true_geometry
 from saft.scene import load_scene
 from saft.scene.mesh import vertex_normals
-from saft.synthetic.appearance import (AppearanceSceneSpec, appearance_motion, newton_motion, scene_info,
-                                       true_motion_on_template, write_appearance_scene)
+from saft.synthetic.appearance import (AppearanceSceneSpec, appearance_motion, mark_run, newton_motion,
+                                       run_is_current, scene_info, true_motion_on_template, write_appearance_scene)
+from saft.synthetic.benchmark_scenes import DONE_FILE
 
 TINY = AppearanceSceneSpec(grid=6, frames=3, frame_dt=0.04)
 
@@ -34,9 +35,31 @@ def test_start_drops_simulated_frames_and_makes_frame_zero_the_template():
 
 def test_saft_motion_identity_is_the_one_written_before_motion_existed():
     info = scene_info(TINY)
-    assert "motion" not in info["spec"] and "gt_grid" not in info["spec"] and "start" not in info["spec"]
+    assert not {"motion", "gt_grid", "start", "self_contact"} & set(info["spec"]) and set(info) == {"kind", "spec"}
     newton = scene_info(AppearanceSceneSpec(grid=6, frames=3, motion="newton"))
     assert newton["spec"]["motion"] == "newton" and newton["spec"]["gt_grid"] == 40
+
+
+def test_newton_identity_records_self_contact_so_the_clips_made_without_it_are_made_again():
+    spec = AppearanceSceneSpec(grid=6, frames=3, motion="newton")
+    info = scene_info(spec)
+    assert info["spec"]["self_contact"] and info["newton"]["self_contact"] and info["newton"]["contact_margin"] > 0
+    # the identity the clips were written with before (Newton without self-contact, recorded nowhere)
+    before = {"kind": "appearance", "spec": {k: v for k, v in info["spec"].items() if k != "self_contact"}}
+    assert info != before
+    assert scene_info(AppearanceSceneSpec(grid=6, frames=3, motion="newton", self_contact=False)) != info
+
+
+def test_a_cached_run_is_current_only_for_the_scene_it_was_made_of(tmp_path):
+    scene, run = tmp_path / "scene", tmp_path / "run"
+    scene.mkdir(), run.mkdir()
+    (scene / DONE_FILE).write_text('{"spec": 1}')
+    (run / "timings.json").write_text("{}")
+    assert not run_is_current(run, scene, "timings.json")            # made before runs were marked
+    mark_run(run, scene)
+    assert run_is_current(run, scene, "timings.json") and not run_is_current(run, scene, "texture.png")
+    (scene / DONE_FILE).write_text('{"spec": 2}')                     # the scene made again, from another spec
+    assert not run_is_current(run, scene, "timings.json")
 
 
 def test_newton_motion_is_the_fine_truth_and_its_resampling_to_the_template():

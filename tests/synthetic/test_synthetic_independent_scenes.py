@@ -11,7 +11,7 @@ import pytest
 
 import saft.synthetic.independent_scenes as independent_scenes
 from saft.scene import load_scene
-from saft.synthetic.appearance import AppearanceSceneSpec, newton_motion
+from saft.synthetic.appearance import AppearanceSceneSpec, _newton_gust, newton_motion
 from saft.synthetic.benchmark_scenes import DONE_FILE
 from saft.synthetic.hanging_cloth import grid_template
 from saft.synthetic.independent_scenes import (SCENARIOS, IndependentSceneSpec, grid_indices, is_complete,
@@ -84,7 +84,11 @@ def _newton_params(monkeypatch, call) -> list:
         seen.append(params)
         return np.repeat(np.asarray(vertices)[None], num_frames, axis=0)
     monkeypatch.setattr(independent_scenes, "simulate_newton_cloth", fake)
-    call()
+    _newton_gust.cache_clear()    # the appearance clips keep the last gust: neither reuse nor keep the fake one
+    try:
+        call()
+    finally:
+        _newton_gust.cache_clear()
     return seen
 
 
@@ -107,10 +111,12 @@ def test_a_scene_made_without_self_contact_is_regenerated(tmp_path):
     assert not is_complete(tmp_path / "old", spec) and is_complete(tmp_path / "new", spec)
 
 
-def test_the_appearance_clips_keep_newtons_gust_without_self_contact(monkeypatch):
-    # their folder identity (appearance.scene_info) does not record it: a cached clip must stay what it was
+def test_the_appearance_clips_simulate_newtons_gust_with_self_contact(monkeypatch):
+    # without it their truth's hem crease passed through the cloth in frames 13-20
     spec = AppearanceSceneSpec(motion="newton", gt_grid=7, grid=5, frames=2)
     (params,) = _newton_params(monkeypatch, lambda: newton_motion(spec))
+    assert params.self_contact and params == IndependentSceneSpec().newton    # the shape benchmark's Newton
+    (params,) = _newton_params(monkeypatch, lambda: newton_motion(replace(spec, self_contact=False)))
     assert not params.self_contact
 
 

@@ -8,7 +8,8 @@ World frame: y UP (Mitsuba's env-map up axis), the sheet hangs in the x-y plane,
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
+from functools import lru_cache
 from pathlib import Path
 from typing import Literal
 
@@ -31,6 +32,7 @@ from saft.synthetic.independent_scenes import (IndependentSceneSpec, grid_indice
 from saft.synthetic.newton_cloth import NewtonClothParams
 
 TEMPLATE_MOTION_FILE = "gt_vertices_template.npy"  # Newton's motion resampled to the template (phase 3's truth)
+RUN_SCENE_FILE = "scene_generator.json"  # a cached run's copy of its scene's DONE_FILE (the scene it was made of)
 
 
 @dataclass
@@ -167,6 +169,9 @@ class AppearanceSceneSpec:
     start: int = 0                 # simulated frames before frame 0 (0: frame 0 is the flat rest shape)
     motion: Literal["saft", "newton"] = "saft"   # which simulator moves the cloth
     gt_grid: int = 40              # motion "newton": ground-truth mesh vertices per side
+    # motion "newton": Newton's own self-contact (as the shape benchmark's scenes, IndependentSceneSpec.newton);
+    # without it the gust's hem crease passes through the cloth in frames 13-20, which no real cloth does
+    self_contact: bool = True
 
 
 def appearance_camera(spec: AppearanceSceneSpec) -> Camera:
@@ -203,27 +208,44 @@ def newton_motion(spec: AppearanceSceneSpec) -> tuple[QuadMesh, np.ndarray, np.n
     points, as independent_scenes builds its template; the "true motion" phase 3 is fitted on), held
     template vertices (the top edge), the ground-truth mesh, its positions (frames, V_gt, 3), frame_dt).
     Both meshes are frame 0's shape (after `start` dropped frames)."""
-    # Newton without self-contact, as the appearance clips were made (their folder identity, scene_info, does not
-    # record it; the shape benchmark's scenes have it on): this gust's hem crease crosses itself in frames 13-20
     ind = IndependentSceneSpec(gt_grid=spec.gt_grid, grid=spec.grid, size=spec.size, frames=spec.start + spec.frames,
-                               seed=spec.seed, newton=NewtonClothParams())
+                               seed=spec.seed, newton=newton_params(spec))
     sc = scenario("gust", ind)
     gt, template = meshes(sc, ind)
-    truth = simulate_independent(sc, gt, ind)[spec.start:]
+    truth = _newton_gust(ind)[spec.start:]
     n = spec.gt_grid
     on_template = np.stack([resample_grid(p.reshape(n, n, 3), spec.grid) for p in truth])
     return (template.with_vertices(on_template[0].copy()), on_template, grid_indices(sc.held, spec.grid, sc.clip),
             gt.with_vertices(truth[0].copy()), truth, 1.0 / sc.fps)
 
 
+@lru_cache(maxsize=1)
+def _newton_gust(ind: IndependentSceneSpec) -> np.ndarray:
+    """Newton's gust on ind's ground-truth mesh (F, V_gt, 3), kept for the next fabric (the same motion; read-only)."""
+    sc = scenario("gust", ind)
+    truth = simulate_independent(sc, meshes(sc, ind)[0], ind)
+    truth.setflags(write=False)
+    return truth
+
+
+def newton_params(spec: AppearanceSceneSpec) -> NewtonClothParams:
+    """Newton's cloth parameters for motion "newton": the shape benchmark's (IndependentSceneSpec.newton), with
+    self-contact as spec.self_contact says."""
+    return replace(IndependentSceneSpec().newton, self_contact=spec.self_contact)
+
+
 def scene_info(spec: AppearanceSceneSpec) -> dict:
     """The identity written into a scene folder's DONE_FILE: a folder with the same one is kept. The fields
-    added later are left out at their old value, so that the folders written before them stay valid."""
+    added later are left out at their old value, so that the folders written before them stay valid; with
+    Newton's motion it also holds every Newton parameter (self-contact among them), so that a clip simulated
+    otherwise (the clips made before, without self-contact, recorded none) is made again."""
     info = {"kind": "appearance", "spec": asdict(spec)}
     if not spec.start:
         del info["spec"]["start"]
     if spec.motion == "saft":
-        del info["spec"]["motion"], info["spec"]["gt_grid"]
+        del info["spec"]["motion"], info["spec"]["gt_grid"], info["spec"]["self_contact"]
+    else:
+        info["newton"] = asdict(newton_params(spec))
     return json.loads(json.dumps(info))
 
 
@@ -278,3 +300,20 @@ def true_motion_on_template(folder) -> np.ndarray:
     folder = Path(folder)
     path = folder / TEMPLATE_MOTION_FILE
     return np.load(path if path.is_file() else folder / "gt_vertices.npy").astype(np.float64)
+
+
+def run_is_current(run_dir, scene_dir, last_file: str) -> bool:
+    """Whether a cached run of a scene (bench_appearance's texture and shape runs, `last_file` written last) was
+    made from the scene folder as it is now: the scene's identity (DONE_FILE) copied into the run by mark_run is
+    the scene's. A scene made again from another spec (e.g. Newton's clips, with self-contact) has a new one."""
+    run_dir, scene_dir = Path(run_dir), Path(scene_dir)
+    try:
+        return ((run_dir / last_file).is_file()
+                and (run_dir / RUN_SCENE_FILE).read_text() == (scene_dir / DONE_FILE).read_text())
+    except OSError:
+        return False
+
+
+def mark_run(run_dir, scene_dir) -> None:
+    """Record in a finished run which scene it was made of (run_is_current)."""
+    (Path(run_dir) / RUN_SCENE_FILE).write_text((Path(scene_dir) / DONE_FILE).read_text())
