@@ -15,6 +15,8 @@ from saft.reconstruct.initial_velocity import initial_velocity
 
 # the parameters that only some runs have, in the order params.tensors() lists them
 OPTIONAL = ("field_accel", "light", "anchor_log10", "v0_field", "log10_drag")
+# learned only with shape.optimize_stiffness; every other parameter is always learned
+STIFFNESSES = ("log10_Y", "log10_B", "log10_S")
 
 
 @dataclass

@@ -39,7 +39,7 @@ from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_lo
 from saft.reconstruct import new_frame_rate
 from saft.reconstruct.silhouette_reach import reach_px, silhouette_weights
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
-from saft.reconstruct.shape_params import FrameStates, ShapeParams
+from saft.reconstruct.shape_params import STIFFNESSES, FrameStates, ShapeParams
 from saft.reconstruct.step_guard import StepGuard
 from saft.reconstruct.air_drag import run_damping_and_drag
 from saft.reconstruct.swing_weights import swing_shape_config
@@ -90,7 +90,7 @@ def _make_optimizer(params: ShapeParams, cfg: ShapeConfig) -> ClippedAdam:
     if params.log10_drag is not None and cfg.lr_air_drag > 0:   # a held drag (lr 0) is never stepped
         specs.append(ParamSpec("log10_drag", params.log10_drag, cfg.lr_air_drag))
     if cfg.optimize_stiffness:
-        specs += [ParamSpec(n, getattr(params, n), cfg.lr_stiffness) for n in ("log10_Y", "log10_B", "log10_S")]
+        specs += [ParamSpec(n, getattr(params, n), cfg.lr_stiffness) for n in STIFFNESSES]
     return ClippedAdam(specs, clip=cfg.grad_clip, quantile=cfg.autoclip_quantile, history=cfg.autoclip_history,
                        include_current=cfg.autoclip_include_current)
 
@@ -139,8 +139,8 @@ def new_shape_state(num_frames: int, num_vertices: int, gravity: np.ndarray, phy
 
 
 def restore_shape_state(saved: dict, cfg: ShapeConfig, device) -> ShapeState:
-    always_learned = ("const_accel", "vertex_accel", "field_accel", "light", "anchor_log10", "v0_field", "log10_drag")
-    p = {k: v.to(device).requires_grad_(k in always_learned or cfg.optimize_stiffness) for k, v in saved["params"].items()}
+    p = {k: v.to(device).requires_grad_(k not in STIFFNESSES or cfg.optimize_stiffness)
+         for k, v in saved["params"].items()}
     params = ShapeParams(**p)
     state = ShapeState(params, _make_optimizer(params, cfg), _make_guard(cfg), saved["epoch"],
                        schedule=saved.get("schedule"), damping=saved.get("damping"))
