@@ -397,3 +397,16 @@ def test_compile_is_on_by_default_on_cuda_only(monkeypatch):
     monkeypatch.setenv(ENV_COMPILE, "1")
     assert compile_requested(None, torch.device("cpu"))
     assert not compile_requested(False, torch.device("cuda"))
+
+
+def test_on_frame_sees_every_frame_as_it_is_done_and_changes_nothing():
+    """rollout's on_frame: called once per frame, in order, frame 0 included, with that frame's positions as
+    returned; the rollout with the hook equals the one without, bit for bit."""
+    t, x0, v0, p, _ = _setup()
+    seen = []
+    with_hook = rollout(t, x0, v0, p, num_frames=N, on_frame=lambda k, x: seen.append((k, x.clone())))
+    plain = rollout(t, x0, v0, p, num_frames=N)
+    assert [k for k, _ in seen] == list(range(N))
+    assert torch.equal(with_hook, plain)
+    for k, x in seen:
+        assert torch.equal(x, plain[k])

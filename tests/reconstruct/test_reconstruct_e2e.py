@@ -194,14 +194,32 @@ def test_renders_in_chunks_of_several_frames_give_the_track_occlusion_one_depth_
     """On CUDA the shape phase renders 8 frames at a time (render_chunk): the occlusion test of the tracks must
     still read one depth map per frame (it zipped one per chunk with the frames and failed on R1 on an H200).
     Run on the CPU with the chunk forced to 3: the same result as one frame at a time, up to float32 sums."""
-    import saft.reconstruct.shape_phase as shape_phase
+    import saft.reconstruct.frame_renders as frame_renders
 
     scene = tiny_scene.with_frames(5)
     cfg = load_config(SaftConfig, None, TINY_CONFIG + ["texture.epochs=6", "shape.final_epochs=4",
                                                        "shape.add_frame_every=2"])
     assert cfg.shape.lambda_track > 0 and cfg.shape.track_occlusion
     single = reconstruct(scene, cfg, tmp_path / "single", quiet=True).positions
-    monkeypatch.setattr(shape_phase, "render_chunk", lambda device: 3)
+    monkeypatch.setattr(frame_renders, "render_chunk", lambda device: 3)
     chunked = reconstruct(scene, cfg, tmp_path / "chunked", quiet=True).positions
     assert np.isfinite(chunked).all()
     assert np.abs(chunked - single).max() < 1e-3
+
+
+@pytest.mark.parametrize("light", ["shape.lr_light=0", "shape.plain_shading=0"])   # unlit; a light learned
+def test_frames_rendered_on_threads_give_the_serial_run_bit_for_bit(tiny_scene, tmp_path, light):
+    """run.render_threads: the shape phase's chunks rendered side by side on a pool of threads, their gradients
+    passed on in chunk order, equal the one-thread run bit for bit (positions and the learned light)."""
+    scene = tiny_scene.with_frames(5)
+    base = TINY_CONFIG + ["texture.epochs=4", "shape.final_epochs=3", "shape.add_frame_every=2",
+                          light]
+    runs = {}
+    for threads in (1, 3):
+        cfg = load_config(SaftConfig, None, base + [f"run.render_threads={threads}"])
+        runs[threads] = reconstruct(scene, cfg, tmp_path / f"t{threads}", quiet=True).positions
+    assert np.isfinite(runs[1]).all()
+    assert np.array_equal(runs[1], runs[3])
+    light_json = [json.loads((tmp_path / f"t{t}" / "params.json").read_text()).get("light") for t in (1, 3)]
+    assert light_json[0] == light_json[1]
+    assert (light_json[0] is not None) == (light == "shape.plain_shading=0")

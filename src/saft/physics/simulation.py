@@ -23,6 +23,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import torch
@@ -116,6 +117,7 @@ class _Sim:
         self.stats_out = None  # the caller's stats dict (backward counters are added as bwd_*)
         self.factor_cache = None  # a FactorCache shared with other rollouts ("lu" and the dense solvers)
         self.first_step = 0       # the absolute substep of this rollout's first one, the cache's key
+        self.on_frame = None      # called with (frame, its positions) as each frame is done (forward pass)
         self.use_numpy = (solver in ("lu", "cholmod")) or (solver == "auto" and t.device.type == "cpu")
         self.m3 = t.mass[:, None].expand(-1, 3)  # (V, 3)
         self.mass_diag = t.mass.repeat_interleave(3)  # (3V,)
@@ -225,6 +227,8 @@ class _RolloutFn(torch.autograd.Function):
             check_finite(val, f"input {name}", 0, 0)
         positions = torch.empty(N, V, 3, dtype=x0.dtype, device=x0.device)
         positions[0] = x0
+        if sim.on_frame is not None:
+            sim.on_frame(0, positions[0])
         saved = torch.empty(max(N - 1, 0) * ns, 3, V, 3, dtype=x0.dtype, device=x0.device)
         x = x0.clone()
         v = v0.clone()
@@ -283,6 +287,8 @@ class _RolloutFn(torch.autograd.Function):
                 saved[i, 2] = v1
             checks.flush()
             positions[k + 1] = x
+            if sim.on_frame is not None:   # the caller's work on a finished frame, while the next is simulated
+                sim.on_frame(k + 1, positions[k + 1])
         ctx.sim = sim
         ctx.solver = solver
         ctx.A_saved = A_saved if keep_A else None
@@ -413,6 +419,7 @@ def rollout(
     anchor_positions: torch.Tensor | None = None,
     factor_cache: FactorCache | None = None,
     first_step: int = 0,
+    on_frame: Callable[[int, torch.Tensor], None] | None = None,
 ) -> torch.Tensor:
     """Simulate ``num_frames`` video frames from (x0, v0); returns positions (num_frames, V, 3) with
     positions[0] = x0. Differentiable w.r.t. x0, v0 and every tensor in ``params``.
@@ -438,6 +445,9 @@ def rollout(
     keeps the factors it makes; ``first_step`` is the absolute substep of this rollout's first substep
     (frame * substeps for a rollout that starts at that frame). Results agree with a rollout without it to
     the solver tolerance.
+    on_frame: called in the forward pass with (frame, its positions (V, 3)) as each frame is done, frame 0
+    included: the caller can start work on it while the next frame is simulated (the positions are the
+    returned tensor's row: read them, do not write).
     Raises SimulationError (naming frame and substep) on NaN/inf.
     """
     t = topology
@@ -457,6 +467,7 @@ def rollout(
                kernels, anchor_positions if anchor is not None else None)
     sim.stats_out = stats
     sim.factor_cache, sim.first_step = factor_cache, int(first_step)
+    sim.on_frame = on_frame
     f = dict(device=dev, dtype=dt)
 
     def sc(v):

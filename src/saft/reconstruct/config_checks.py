@@ -17,6 +17,7 @@ INF = math.inf
 RANGES: dict[str, tuple[float, float, bool]] = {
     "run.seed": (0, INF, True),
     "run.threads": (0, 1024, True),
+    "run.render_threads": (0, 64, True),
     "run.checkpoint_seconds": (0, INF, True),
     "render.scale": (0, 4, False),
     "texture.epochs": (0, 1_000_000, True),

@@ -43,6 +43,7 @@ class PhaseContext:
     guard: InterruptGuard = field(default_factory=InterruptGuard)
     clock: CheckpointClock = field(default_factory=lambda: CheckpointClock(0.0))
     _reference_normals: torch.Tensor | None = field(default=None, repr=False)   # facing normals of the template
+    render_threads: int = 1            # shape-phase frames rendered side by side (frame_renders.render_threads)
     # Called after every epoch with (phase, epochs done); returning True acts like Ctrl-C.
     on_epoch: Callable[[str, int], bool | None] | None = None
 

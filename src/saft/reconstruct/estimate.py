@@ -30,7 +30,7 @@ from saft.physics import PhysicsParams, rollout
 from saft.physics.factor_cache import FactorCache
 from saft.reconstruct.config import SaftConfig
 from saft.reconstruct.frame_schedule import simulated_frames_per_epoch
-from saft.reconstruct.shape_phase import render_chunk
+from saft.reconstruct.frame_renders import render_chunk
 
 log = logging.getLogger("saft")
 

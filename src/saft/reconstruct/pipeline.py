@@ -29,6 +29,7 @@ from saft.reconstruct.config import SaftConfig
 from saft.reconstruct.config_checks import check_config_ranges
 from saft.reconstruct.context import PhaseContext, to_device_targets
 from saft.reconstruct.estimate import log_estimate
+from saft.reconstruct.frame_renders import render_threads
 from saft.reconstruct.light import scene_up
 from saft.reconstruct.out_dir import check_out_dir, create_out_dir
 from saft.reconstruct.outputs import write_shape_outputs
@@ -82,7 +83,15 @@ def _shape_phase(ctx: PhaseContext, scene: Scene, cfg: SaftConfig) -> None:
                                cfg.physics, cfg.shape, physics, anchors=anchors_on(scene.pinned, cfg.shape, stated),
                                up=scene_up(scene.gravity)))
     if cfg.shape.enabled:
-        positions = run_shape_phase(ctx, sim, ss, cfg.physics, cfg.shape, texture)
+        # frames rendered side by side: each render on one torch thread (the physics toggles torch's thread
+        # count around its rollouts, which must not change under a running render)
+        threads = torch.get_num_threads()
+        if ctx.render_threads > 1:
+            torch.set_num_threads(1)
+        try:
+            positions = run_shape_phase(ctx, sim, ss, cfg.physics, cfg.shape, texture)
+        finally:
+            torch.set_num_threads(threads)
     else:
         with torch.no_grad():
             positions = sim.simulate(ss.params, scene.num_frames)
@@ -192,6 +201,7 @@ def reconstruct(scene: Scene, cfg: SaftConfig, out_dir: str | Path, *, resume: b
         uvs=torch.as_tensor(scene.template.uvs, dtype=torch.float32, device=device),
         target_rgb=target_rgb, target_mask=target_mask,
         rasterizer=get_rasterizer(cfg.render.backend, device), progress=Progress(quiet=quiet),
+        render_threads=render_threads(cfg.run.render_threads, device),
         log=EpochLog(saved["log"] if saved else None), out_dir=out_dir,
         state=saved or {"version": CHECKPOINT_VERSION, "phase": "texture", "identity": identity}, timings=timings,
         guard=InterruptGuard(), clock=CheckpointClock(cfg.run.checkpoint_seconds), on_epoch=on_epoch,

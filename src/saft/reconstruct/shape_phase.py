@@ -35,9 +35,10 @@ from saft.reconstruct.context import PhaseContext
 from saft.reconstruct.force_field import affine_basis
 from saft.reconstruct.initial_velocity import start_velocity, velocity_prior
 from saft.reconstruct.light import curved_start_in_motion, initial_light, plain_cloth
-from saft.reconstruct.losses import force_regularizer, image_loss, silhouette_loss
+from saft.reconstruct.frame_renders import FrameRenders
+from saft.reconstruct.losses import force_regularizer
 from saft.reconstruct import new_frame_rate
-from saft.reconstruct.silhouette_reach import reach_px, silhouette_weights
+from saft.reconstruct.silhouette_reach import reach_px
 from saft.reconstruct.optim import ClippedAdam, ParamSpec
 from saft.reconstruct.shape_params import STIFFNESSES, FrameStates, ShapeParams
 from saft.reconstruct.step_guard import StepGuard
@@ -45,14 +46,6 @@ from saft.reconstruct.air_drag import run_damping_and_drag
 from saft.reconstruct.swing_weights import swing_shape_config
 from saft.reconstruct.tracks import VertexTracks, compute_vertex_tracks, hidden_vertices, track_loss
 from saft.reconstruct.window_hold import outside_window, per_frame, restore_outside_window
-
-# Frames rendered per batch inside an epoch; the physics graph is kept, the render graphs are not. On a
-# GPU a batch of 8 fills the device; on a CPU one frame at a time is cheaper per frame (R1's 700 x 800,
-# forward + backward: ~60 ms a frame alone, ~115 ms a frame in a batch of 8, whose large temporaries miss
-# the caches and are paged in and out by the allocator; BENCHMARKS.md).
-def render_chunk(device) -> int:
-    return 1 if torch.device(device).type == "cpu" else 8
-
 
 @dataclass
 class ShapeState:
@@ -176,20 +169,24 @@ class ShapeSimulator:
         self.topology = ClothTopology.from_quads(t.detach().cpu().numpy(), self.quads, density=self.phys.density,
                                                  device=t.device, dtype=t.dtype, rest_shape=rest_shape)
 
-    def simulate(self, params: ShapeParams, num_frames: int, factors: FactorCache | None = None) -> torch.Tensor:
-        """(num_frames, V, 3) positions, frame 0 = template; `factors`: the solver's cache across epochs."""
+    def simulate(self, params: ShapeParams, num_frames: int, factors: FactorCache | None = None,
+                 on_frame=None) -> torch.Tensor:
+        """(num_frames, V, 3) positions, frame 0 = template; `factors`: the solver's cache across epochs;
+        `on_frame`: rollout's, called with (frame, positions) as each is done."""
         accel = params.accelerations(self.field_basis, 0, num_frames - 1)
         v0 = params.velocity(self.field_basis)
         return rollout(self.topology, self.template, v0, self._physics(params, accel), num_frames=num_frames,
                        substeps=self.phys.substeps, frame_dt=self.frame_dt, pinned=self.pinned,
-                       hessian=self.phys.hessian, anchor_positions=self.template, factor_cache=factors)
+                       hessian=self.phys.hessian, anchor_positions=self.template, factor_cache=factors,
+                       on_frame=on_frame)
 
     def simulate_from(self, params: ShapeParams, start: int, num_frames: int, x0: torch.Tensor | None = None,
-                      v0: torch.Tensor | None = None,
-                      factors: FactorCache | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+                      v0: torch.Tensor | None = None, factors: FactorCache | None = None,
+                      on_frame=None) -> tuple[torch.Tensor, torch.Tensor]:
         """Frames start..num_frames-1 from the state (x0, v0) at frame `start` (None: the template, with the
         learned velocity at frame 0 or at rest):
-        positions and velocities at each frame boundary, (num_frames - start, V, 3) each.
+        positions and velocities at each frame boundary, (num_frames - start, V, 3) each. `on_frame`: called
+        with (frame - start, positions) as each frame is done.
 
         The rollout is asked for every substep as a frame of its own (the same steps as simulate()), so
         that the velocity at a frame boundary is exact: v = (x_k − x_k⁻) / h.
@@ -203,7 +200,8 @@ class ShapeSimulator:
         a_sub = params.accelerations(self.field_basis, start, num_frames - 1).repeat_interleave(S, dim=0)
         pos = rollout(self.topology, x0, v0, self._physics(params, a_sub), num_frames=(n - 1) * S + 1, substeps=1,
                       frame_dt=self.frame_dt / S, pinned=self.pinned, hessian=self.phys.hessian,
-                      anchor_positions=self.template, factor_cache=factors, first_step=start * S)
+                      anchor_positions=self.template, factor_cache=factors, first_step=start * S,
+                      on_frame=None if on_frame is None else lambda j, x: on_frame(j // S, x) if j % S == 0 else None)
         x = pos[::S]
         v = torch.cat([v0[None], (pos[S::S] - pos[S - 1::S]) / (self.frame_dt / S)], dim=0)
         return x, v
@@ -232,10 +230,11 @@ class ShapeSimulator:
                                   params.log10_S.detach())
 
 
-def simulate_epoch(sim: ShapeSimulator, state: ShapeState, frames: int, start: int) -> torch.Tensor:
-    """Positions of frames start..frames-1 with graph; windowed runs also refresh the stored states."""
+def simulate_epoch(sim: ShapeSimulator, state: ShapeState, frames: int, start: int, on_frame=None) -> torch.Tensor:
+    """Positions of frames start..frames-1 with graph; windowed runs also refresh the stored states.
+    `on_frame`: called with (frame - start, positions) as each frame of the graph's rollout is done."""
     if state.states is None:
-        return sim.simulate(state.params, frames, state.factors)
+        return sim.simulate(state.params, frames, state.factors, on_frame)
     st = state.states
     if 0 < start and st.fresh <= start:
         # Bring the stored states up to the window's start under the current parameters (forward only).
@@ -245,7 +244,7 @@ def simulate_epoch(sim: ShapeSimulator, state: ShapeState, frames: int, start: i
             st.update(s0, *sim.simulate_from(state.params, s0, start + 1, x0, v0, state.factors))
     # clones: the rollout keeps its start state for the backward, and update() writes into the store
     x0, v0 = (st.x[start].clone(), st.v[start].clone()) if start > 0 else (None, None)
-    x, v = sim.simulate_from(state.params, start, frames, x0, v0, state.factors)
+    x, v = sim.simulate_from(state.params, start, frames, x0, v0, state.factors, on_frame)
     st.update(start, x, v)
     return x
 
@@ -298,37 +297,17 @@ def epoch_loss_and_grad(ctx: PhaseContext, sim: ShapeSimulator, state: ShapeStat
     detached state); leaves the gradients in the parameters. Returns the loss terms."""
     params = state.params
     # record_function ranges (no cost without a profiler): benchmarks/bench_r1.py --profile splits a run by them
-    with record_function("saft.shape.simulate"):
-        positions = simulate_epoch(sim, state, frames, start)     # (F - start, V, 3) float64, with graph
-    # The renders may run on another device than the physics (saft.device.plan_devices).
-    pos_leaf = positions.detach().to(device=ctx.device, dtype=torch.float32).requires_grad_(True)
-    n_win = frames - start
-
-    # Render in chunks: each chunk's graph is freed after its backward into pos_leaf.
-    sums = {"image": 0.0, "silhouette": 0.0}
-    depths = []
-    batch = render_chunk(ctx.device)
+    # Every frame rendered and differentiated (in chunks; on the CPU with cores to spare, on a pool of threads,
+    # each frame as soon as the physics has it). The renders may run on another device than the physics.
     light = params.light.to(device=ctx.device, dtype=torch.float32) if params.light is not None else None
-    for lo in range(0, n_win, batch):
-        hi = min(n_win, lo + batch)
-        with record_function("saft.shape.render"):
-            out = ctx.render(pos_leaf[lo:hi], texture, light)
-            if tracks is not None and cfg.track_occlusion:
-                depths.extend(out.depth.detach().to(positions.device))   # one (H, W) per frame of the chunk
-            rgb, mask = out.rgb, out.mask
-            if cfg.hard_coverage:
-                covered = (out.rast[..., 3] > 0).to(rgb.dtype)
-                rgb, mask = rgb * covered.unsqueeze(-1), mask * covered
-            n = hi - lo
-            l_img = image_loss(rgb, ctx.target_rgb[start + lo:start + hi]) * (n / n_win)
-            w_sil = silhouette_weights(ctx.target_mask, start + lo, start + hi, reach_px(cfg, sim.pinned),
-                                       cfg.sil_reach_gain)
-            l_sil = silhouette_loss(mask, ctx.target_mask[start + lo:start + hi], w_sil) * (n / n_win)
-            chunk = cfg.lambda_image * l_img + cfg.lambda_sil * l_sil
-            if chunk.requires_grad:
-                chunk.backward()
-            sums["image"] += float(l_img.detach())
-            sums["silhouette"] += float(l_sil.detach())
+    renders = FrameRenders(ctx, cfg, light, texture, start, frames - start, reach_px(cfg, sim.pinned),
+                           tracks is not None and cfg.track_occlusion, ctx.render_threads)
+    with record_function("saft.shape.simulate"):
+        positions = simulate_epoch(sim, state, frames, start, renders.frame_ready if renders.streaming else None)
+    pos_leaf = positions.detach().to(device=ctx.device, dtype=torch.float32).requires_grad_(True)
+    with record_function("saft.shape.render"):
+        sums, depths = renders.finish(pos_leaf)
+    depths = [d.to(positions.device) for d in depths]
 
     # Regularizers on the physics side (float64).
     with record_function("saft.shape.regularizers"):
