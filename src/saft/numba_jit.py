@@ -23,15 +23,17 @@ def jit(fn, **options):
 _lock = threading.Lock()
 
 
-def jit_in_place(namespace: dict, kernels: tuple[str, ...], inlined: tuple[str, ...] = ()) -> None:
+def jit_in_place(namespace: dict, kernels: tuple[str, ...], inlined: tuple[str, ...] = (), **options) -> None:
     """Replace a module's plain Python functions (`namespace`: its globals()) by numba dispatchers: the
     `inlined` helpers first (inline="always"; the kernels resolve them as globals when compiled), then the
-    `kernels`. Idempotent (the module's "_jitted" flag) and thread-safe; raises ImportError without numba."""
+    `kernels`, each with numba's `options` (e.g. error_model="numpy": x / 0 gives inf or nan as in torch
+    instead of raising). Idempotent (the module's "_jitted" flag) and thread-safe; raises ImportError without
+    numba."""
     with _lock:
         if namespace.get("_jitted"):
             return
         for name in inlined:
-            namespace[name] = jit(namespace[name], inline="always")
+            namespace[name] = jit(namespace[name], inline="always", **options)
         for name in kernels:
-            namespace[name] = jit(namespace[name])
+            namespace[name] = jit(namespace[name], **options)
         namespace["_jitted"] = True
