@@ -32,8 +32,9 @@ def render_chunk(device) -> int:
 
 def render_threads(requested: int, device) -> int:
     """Threads that render chunks at once: `requested` (run.render_threads) when > 0; 0 = automatic: every
-    core up to 4 on the CPU (beyond that the Python side of each render holds the GIL too long to gain), one
-    on a GPU (its kernels queue on one stream)."""
+    core up to 4 on the CPU, one on a GPU (its kernels queue on one stream). Measured on 2 cores only (the
+    shape phase −20 to −40 %, BENCHMARKS.md); the cap is a guess: the Python side of each render holds the
+    GIL, so many more threads would mostly wait for it."""
     if requested > 0:
         return requested
     if torch.device(device).type != "cpu":
