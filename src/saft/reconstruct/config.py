@@ -24,7 +24,8 @@ class RunConfig:
     device: Literal["auto", "cpu", "cuda"] = "auto"
     seed: int = 0
     threads: int = 0                      # torch CPU threads; 0 = automatic
-    render_threads: int = 0               # shape phase: frames rendered side by side; 0 = automatic (CPU: the cores, ≤ 4)
+    # shape phase: frames rendered side by side (saft.reconstruct.frame_renders); 0 = automatic (CPU: the cores, ≤ 4)
+    render_threads: int = 0
     checkpoint_seconds: float = 20.0      # write the resume state at most this often (and at phase ends)
 
 

@@ -16,7 +16,8 @@ from saft.config_io import to_dict
 from saft.errors import SaftInputError
 
 # Config keys that change when or how often state is saved, or how fast it runs, never the numbers.
-NOT_RESULT_KEYS = frozenset({"run.checkpoint_seconds", "run.threads", "run.render_threads", "appearance.checkpoint_every"})
+NOT_RESULT_KEYS = frozenset({"run.checkpoint_seconds", "run.threads", "run.render_threads",
+                             "appearance.checkpoint_every"})
 
 
 def _digest(*arrays) -> str:
